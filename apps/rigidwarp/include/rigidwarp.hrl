@@ -1,0 +1,19 @@
+-include_lib("rw_physics/include/rw_physics.hrl").
+
+%% A validated scene, ready to run. Bodies are ranked by id: a sphere's or
+%% fixture's idx is its position in the sorted list of all ids, and contacts
+%% are always summed in that order.
+-record(scene, {
+    name :: binary(),
+    file :: string() | undefined,
+    duration_ms :: pos_integer(),
+    substep_ms :: pos_integer(),
+    stride_ms :: pos_integer(),
+    frame_ms :: pos_integer(),
+    model :: #model{},
+    spheres :: [#sphere{}],          % ascending idx
+    initial :: [#st{}],              % parallel to spheres
+    fixtures :: [#fixture{}],        % ascending idx
+    cell_size :: float(),
+    buckets :: pos_integer() | undefined
+}).

@@ -1,0 +1,116 @@
+%% The shell API of rigidwarp.
+%%
+%%   1> rigidwarp:run("scenarios/head_on_elastic.json", #{engine => reference}).
+%%   {ok, #{scene => <<"head_on_elastic">>, realtime_factor => ..., ...}}
+-module(rigidwarp).
+-include("rigidwarp.hrl").
+-export([run/2, run_scene/2, load/2, help/0]).
+-export_type([run_options/0, summary/0]).
+
+-type run_options() :: #{engine => reference,
+                         until => pos_integer(), substep => pos_integer(),
+                         stride => pos_integer(), frame_ms => pos_integer(),
+                         frames => file:filename(),
+                         on_frame => fun((rw_reference:frame()) -> any())}.
+-type summary() :: #{atom() => term()}.
+
+-define(OPTION_KEYS, [engine, until, substep, stride, frame_ms, frames, on_frame]).
+
+-spec help() -> ok.
+help() ->
+    io:put_chars(
+      "rigidwarp shell API\n"
+      "  rigidwarp:run(SceneFile, Opts)  run a scene to the end, return a summary map\n"
+      "      Opts: engine => reference, until => Ms, substep => Ms, stride => Ms,\n"
+      "            frame_ms => Ms, frames => \"out.jsonl\", on_frame => fun(Frame) -> _ end\n"
+      "  rigidwarp:load(SceneFile, Opts) validate a scene, return {ok, Scene} | {error, Message}\n"),
+    ok.
+
+%% Load and validate a scene with the overrides in Opts.
+-spec load(file:filename(), run_options()) -> {ok, #scene{}} | {error, string()}.
+load(File, Opts) ->
+    case check_options(Opts) of
+        ok ->
+            case rw_scene:load(File, overrides(Opts)) of
+                {ok, Scene} -> {ok, Scene};
+                {error, E} -> {error, rw_scene:format_error(E)}
+            end;
+        {error, _} = Error ->
+            Error
+    end.
+
+-spec run(file:filename(), run_options()) -> {ok, summary()} | {error, string()}.
+run(File, Opts) ->
+    case load(File, Opts) of
+        {ok, Scene} -> run_scene(Scene, Opts);
+        {error, _} = Error -> Error
+    end.
+
+%% Run a scene that load/2 returned.
+-spec run_scene(#scene{}, run_options()) -> {ok, summary()} | {error, string()}.
+run_scene(Scene, Opts) ->
+    Engine = maps:get(engine, Opts, reference),
+    case open_sink(Opts) of
+        {ok, Sink, Close} ->
+            T0 = erlang:monotonic_time(microsecond),
+            try rw_reference:run(Scene, #{on_frame => Sink}) of
+                {ok, Stats} ->
+                    Wall = erlang:monotonic_time(microsecond) - T0,
+                    ok = Close(ok),
+                    {ok, summary(Scene, Engine, Stats, Wall)}
+            catch
+                Class:Reason:Stack ->
+                    ok = Close(abort),
+                    erlang:raise(Class, Reason, Stack)
+            end;
+        {error, _} = Error ->
+            Error
+    end.
+
+open_sink(Opts) ->
+    User = maps:get(on_frame, Opts, fun(_) -> ok end),
+    case maps:find(frames, Opts) of
+        error ->
+            {ok, User, fun(_) -> ok end};
+        {ok, File} ->
+            case rw_frames:writer(File) of
+                {ok, Write, Close} ->
+                    {ok, fun(F) -> Write(F), User(F) end, Close};
+                {error, Reason} ->
+                    {error, lists:flatten(io_lib:format("cannot write frames to ~ts: ~ts",
+                                                        [File, file:format_error(Reason)]))}
+            end
+    end.
+
+summary(#scene{name = Name, substep_ms = Dt, stride_ms = Stride, spheres = Spheres}, Engine,
+        #{sim_ms := SimMs, frames := Frames} = Stats, WallUs) ->
+    WallMs = WallUs / 1000.0,
+    #{scene => Name, engine => Engine, bodies => length(Spheres), substep_ms => Dt,
+      stride_ms => Stride, sim_ms => SimMs, wall_ms => round(WallMs),
+      realtime_factor => SimMs / max(WallMs, 0.001), frames => Frames,
+      pair_contacts => maps:get(pair_contacts, Stats), fixture_contacts => maps:get(fixture_contacts, Stats),
+      body_substeps => maps:get(body_substeps, Stats)}.
+
+check_options(Opts) when is_map(Opts) ->
+    Bad = [K || K <- maps:keys(Opts), not lists:member(K, ?OPTION_KEYS)],
+    Checks = [{K, V} || {K, V} <- maps:to_list(Opts)],
+    case Bad of
+        [K | _] -> {error, lists:flatten(io_lib:format("unknown option ~p (known: ~p)", [K, ?OPTION_KEYS]))};
+        [] -> check_values(Checks)
+    end;
+check_options(Opts) ->
+    {error, lists:flatten(io_lib:format("options must be a map, got ~p", [Opts]))}.
+
+check_values([]) -> ok;
+check_values([{engine, reference} | Rest]) -> check_values(Rest);
+check_values([{K, V} | Rest]) when (K =:= until orelse K =:= substep orelse K =:= stride orelse
+                                    K =:= frame_ms), is_integer(V), V > 0 -> check_values(Rest);
+check_values([{frames, F} | Rest]) when is_list(F); is_binary(F) -> check_values(Rest);
+check_values([{on_frame, F} | Rest]) when is_function(F, 1) -> check_values(Rest);
+check_values([{K, V} | _]) ->
+    {error, lists:flatten(io_lib:format("bad value for option ~p: ~p", [K, V]))}.
+
+overrides(Opts) ->
+    maps:from_list([{Scene, V} || {Opt, Scene} <- [{until, duration_ms}, {substep, substep_ms},
+                                                   {stride, stride_ms}, {frame_ms, frame_ms}],
+                                  {ok, V} <- [maps:find(Opt, Opts)]]).

@@ -1,0 +1,125 @@
+%% The sequential reference engine: plain, frame-centric, one process. For
+%% each substep it finds every contact among the pre-response states of that
+%% substep, sums each body's contact effects in canonical order of partner,
+%% and integrates. It is the oracle the Time Warp engine must equal bit for
+%% bit, so it is kept simple enough to trust by reading.
+-module(rw_reference).
+-include("rigidwarp.hrl").
+-export([run/2, substep/3]).
+-export_type([frame/0, body_frame/0, stats/0, options/0]).
+
+%% A committed frame: each dynamic body's position and post-response
+%% velocities at time T, sorted by id.
+-type body_frame() :: {Id :: binary(), P :: rw_vec:vec(), V :: rw_vec:vec(),
+                       Q :: rw_quat:quat() | undefined, W :: rw_vec:vec() | undefined}.
+-type frame() :: {frame, T :: non_neg_integer(), [body_frame()]}.
+-type stats() :: #{substeps := non_neg_integer(), body_substeps := non_neg_integer(),
+                   pair_contacts := non_neg_integer(), fixture_contacts := non_neg_integer(),
+                   frames := non_neg_integer(), sim_ms := non_neg_integer()}.
+-type options() :: #{until => pos_integer(),
+                     on_frame => fun((frame()) -> any())}.
+
+-spec run(#scene{}, options()) -> {ok, stats()}.
+run(#scene{duration_ms = Duration, substep_ms = Dt, frame_ms = FrameMs, spheres = Spheres,
+           initial = Initial} = Scene, Opts) ->
+    End = maps:get(until, Opts, Duration),
+    OnFrame = maps:get(on_frame, Opts, fun(_) -> ok end),
+    Bodies = list_to_tuple(Spheres),
+    Stats0 = #{substeps => 0, body_substeps => 0, pair_contacts => 0, fixture_contacts => 0,
+               frames => 0, sim_ms => End},
+    loop(0, End, Dt, FrameMs, Scene, Bodies, list_to_tuple(Initial), OnFrame, Stats0).
+
+loop(T, End, Dt, FrameMs, Scene, Bodies, States, OnFrame, Stats) ->
+    Frame = T rem FrameMs =:= 0 orelse T =:= End,
+    {Next, Post, Counts} = substep(Scene, Bodies, States),
+    Stats1 = maps:map(fun(K, V) -> V + maps:get(K, Counts, 0) end, Stats),
+    Stats2 = case Frame of
+                 true ->
+                     OnFrame({frame, T, frame_bodies(Bodies, States, Post)}),
+                     maps:update_with(frames, fun(F) -> F + 1 end, Stats1);
+                 false -> Stats1
+             end,
+    case T >= End of
+        true -> {ok, Stats2#{substeps := T div Dt}};
+        false -> loop(T + Dt, End, Dt, FrameMs, Scene, Bodies, Next, OnFrame, Stats2)
+    end.
+
+frame_bodies(Bodies, States, Post) ->
+    [begin
+         #sphere{id = Id} = element(K, Bodies),
+         #st{p = P, q = Q} = element(K, States),
+         {V, W, _U} = element(K, Post),
+         {Id, P, V, Q, W}
+     end || K <- lists:seq(1, tuple_size(Bodies))].
+
+%% One substep for every body: returns the next states, the post-response
+%% velocities at this substep and counters.
+-spec substep(#scene{}, tuple(), tuple()) -> {tuple(), tuple(), map()}.
+substep(#scene{model = #model{ccd = Ccd} = M, fixtures = Fixtures, cell_size = Cell}, Bodies, States) ->
+    N = tuple_size(Bodies),
+    Disp = case Ccd of
+               true -> list_to_tuple([rw_integrate:free_displacement(M, element(K, States))
+                                      || K <- lists:seq(1, N)]);
+               false -> undefined
+           end,
+    Pairs = candidate_pairs(Bodies, States, Disp, Cell),
+    Effects0 = maps:from_list([{K, []} || K <- lists:seq(1, N)]),
+    {Effects1, NPairs} =
+        lists:foldl(
+          fun({A, B}, {Acc, C}) ->
+                  SA = element(A, Bodies), SB = element(B, Bodies),
+                  StA = element(A, States), StB = element(B, States),
+                  case pair_contact(SA, StA, SB, StB, A, B, Disp) of
+                      none -> {Acc, C};
+                      Contact ->
+                          {EA, EB} = rw_response:pair(M, SA, StA, SB, StB, Contact),
+                          Acc1 = maps:update_with(A, fun(L) -> [{{SB#sphere.idx, 0}, EA} | L] end, Acc),
+                          {maps:update_with(B, fun(L) -> [{{SA#sphere.idx, 0}, EB} | L] end, Acc1), C + 1}
+                  end
+          end, {Effects0, 0}, Pairs),
+    {Effects, NFixture} =
+        lists:foldl(
+          fun(K, {Acc, C}) ->
+                  S = element(K, Bodies), St = element(K, States),
+                  Hits = [{{FIdx, Feature}, rw_response:fixture(M, S, St, Contact)}
+                          || #fixture{idx = FIdx, shape = Shape} <- Fixtures,
+                             {Feature, Contact} <- fixture_contacts(S, St, K, Disp, Shape)],
+                  {maps:update_with(K, fun(L) -> Hits ++ L end, Acc), C + length(Hits)}
+          end, {Effects1, 0}, lists:seq(1, N)),
+    Results = [begin
+                   St = element(K, States),
+                   Sorted = [E || {_, E} <- lists:keysort(1, maps:get(K, Effects))],
+                   {V, W, U} = rw_dynamics:respond(St, Sorted),
+                   {rw_integrate:advance(M, St, V, W, U), {V, W, U}}
+               end || K <- lists:seq(1, N)],
+    {list_to_tuple([S || {S, _} <- Results]), list_to_tuple([P || {_, P} <- Results]),
+     #{body_substeps => N, pair_contacts => NPairs, fixture_contacts => NFixture}}.
+
+pair_contact(#sphere{radius = RA}, #st{p = PA}, #sphere{radius = RB}, #st{p = PB}, _A, _B, undefined) ->
+    rw_narrow:sphere_sphere(PA, RA, PB, RB);
+pair_contact(#sphere{radius = RA}, #st{p = PA}, #sphere{radius = RB}, #st{p = PB}, A, B, Disp) ->
+    rw_narrow:swept_sphere_sphere(PA, element(A, Disp), RA, PB, element(B, Disp), RB).
+
+fixture_contacts(#sphere{radius = R}, #st{p = P}, _K, undefined, Shape) ->
+    rw_narrow:sphere_fixture(P, R, Shape);
+fixture_contacts(#sphere{radius = R}, #st{p = P}, K, Disp, Shape) ->
+    rw_narrow:swept_sphere_fixture(P, element(K, Disp), R, Shape).
+
+%% Pairs (lower position first) whose boxes share a cell of the grid.
+candidate_pairs(Bodies, States, Disp, Cell) ->
+    Grid = lists:foldl(
+             fun(K, G) ->
+                     #sphere{radius = R} = element(K, Bodies),
+                     #st{p = P} = element(K, States),
+                     Box = case Disp of
+                               undefined -> rw_shape:sphere_aabb(P, R);
+                               _ -> rw_shape:swept_aabb(P, element(K, Disp), R)
+                           end,
+                     lists:foldl(fun(C, G1) -> maps:update_with(C, fun(L) -> [K | L] end, [K], G1) end,
+                                 G, rw_hash:cells(Box, Cell))
+             end, #{}, lists:seq(1, tuple_size(Bodies))),
+    Pairs = maps:fold(fun(_, Ks, Acc) when length(Ks) < 2 -> Acc;
+                         (_, Ks, Acc) -> lists:foldl(fun(P, A) -> A#{P => true} end, Acc,
+                                                     [{A, B} || A <- Ks, B <- Ks, A < B])
+                      end, #{}, Grid),
+    lists:sort(maps:keys(Pairs)).

@@ -1,0 +1,512 @@
+%% Scene files: JSON in, a validated #scene{} out. Every error names the
+%% file, the JSON path of the offending field and what is wrong with it.
+%% Nothing is started before a scene validates.
+-module(rw_scene).
+-include("rigidwarp.hrl").
+-include_lib("kernel/include/file.hrl").
+-export([load/1, load/2, from_map/2, from_binary/2, format_error/1, max_abs/0]).
+-export_type([error/0, overrides/0]).
+
+-type path() :: [binary() | non_neg_integer()].
+-type error() :: {scene_error, File :: string() | undefined, path(), Message :: string()}.
+%% Values that replace the scene's own (from CLI flags or the shell).
+-type overrides() :: #{duration_ms => pos_integer(), substep_ms => pos_integer(),
+                       stride_ms => pos_integer(), frame_ms => pos_integer(),
+                       buckets => pos_integer()}.
+
+%% Coordinates, speeds and sizes beyond this are rejected: far enough for
+%% scenes around +-1e9 m, near enough that squared distances stay finite.
+-define(MAX_ABS, 1.0e12).
+-define(MAX_FILE_BYTES, 64 * 1024 * 1024).
+
+-spec max_abs() -> float().
+max_abs() -> ?MAX_ABS.
+
+-spec load(file:filename()) -> {ok, #scene{}} | {error, error()}.
+load(File) -> load(File, #{}).
+
+-spec load(file:filename(), overrides()) -> {ok, #scene{}} | {error, error()}.
+load(File0, Overrides) ->
+    File = unicode:characters_to_list(File0),
+    case file:read_file_info(File) of
+        {ok, #file_info{size = Size}} when Size > ?MAX_FILE_BYTES ->
+            {error, {scene_error, File, [], "file is larger than 64 MiB; not a scene"}};
+        _ ->
+            case file:read_file(File) of
+                {ok, Bin} -> from_binary(Bin, #{file => File, overrides => Overrides});
+                {error, Reason} ->
+                    {error, {scene_error, File, [], "cannot read file: " ++ file:format_error(Reason)}}
+            end
+    end.
+
+-spec from_binary(binary(), #{file => string(), overrides => overrides()}) ->
+          {ok, #scene{}} | {error, error()}.
+from_binary(Bin, Opts) ->
+    File = maps:get(file, Opts, undefined),
+    case decode(Bin) of
+        {ok, Map} -> from_map(Map, Opts);
+        {error, Msg} -> {error, {scene_error, File, [], Msg}}
+    end.
+
+-spec from_map(term(), #{file => string(), overrides => overrides()}) ->
+          {ok, #scene{}} | {error, error()}.
+from_map(Map, Opts) ->
+    File = maps:get(file, Opts, undefined),
+    try
+        {ok, build(Map, maps:get(overrides, Opts, #{}), File)}
+    catch
+        throw:{invalid, Path, Msg} -> {error, {scene_error, File, Path, Msg}}
+    end.
+
+-spec format_error(error()) -> string().
+format_error({scene_error, File, Path, Msg}) ->
+    Where = case File of undefined -> ""; _ -> File ++ ": " end,
+    lists:flatten([Where, format_path(Path), ": ", Msg]).
+
+%%% Decoding
+
+decode(Bin) ->
+    try jiffy:decode(Bin, [return_maps, dedupe_keys]) of
+        Map when is_map(Map) -> {ok, Map};
+        _ -> {error, "a scene must be a JSON object"}
+    catch
+        error:{Pos, truncated_json} when is_integer(Pos) ->
+            {error, "invalid JSON: the text ends early"};
+        error:{Pos, Reason} when is_integer(Pos) ->
+            {error, lists:flatten(io_lib:format("invalid JSON at byte ~b: ~p", [Pos, Reason]))};
+        error:{range, _} ->
+            {error, "invalid JSON: a number is too large for a double"};
+        error:_ ->
+            {error, "invalid JSON"}
+    end.
+
+%%% Building
+
+-define(TOP_KEYS, [<<"name">>, <<"description">>, <<"duration_ms">>, <<"substep_ms">>,
+                   <<"stride_ms">>, <<"frame_ms">>, <<"model">>, <<"bodies">>,
+                   <<"generators">>, <<"cell_size">>, <<"buckets">>]).
+
+build(Map, Overrides, File) ->
+    object(Map, []),
+    known_keys(Map, ?TOP_KEYS, []),
+    Name = string_field(Map, <<"name">>, [], required),
+    _ = string_field(Map, <<"description">>, [], <<>>),
+    Substep = override(substep_ms, Overrides, fun() -> pos_int(Map, <<"substep_ms">>, [], 1) end),
+    Duration = override(duration_ms, Overrides, fun() -> pos_int(Map, <<"duration_ms">>, [], required) end),
+    Stride = override(stride_ms, Overrides, fun() -> pos_int(Map, <<"stride_ms">>, [], 64 * Substep) end),
+    Frame = override(frame_ms, Overrides, fun() -> pos_int(Map, <<"frame_ms">>, [], 10 * Substep) end),
+    multiple_of(Duration, Substep, [<<"duration_ms">>]),
+    multiple_of(Stride, Substep, [<<"stride_ms">>]),
+    multiple_of(Frame, Substep, [<<"frame_ms">>]),
+    Model = model(maps:get(<<"model">>, Map, #{}), Substep / 1000.0),
+    Bodies = list_field(Map, <<"bodies">>, []),
+    Generated = generators(list_field(Map, <<"generators">>, [])),
+    Parsed = [body(B, [<<"bodies">>, I]) || {I, B} <- enumerate(Bodies)] ++ Generated,
+    unique_ids(Parsed),
+    Ranked = rank(Parsed),
+    Spheres0 = [{S, St, P} || {sphere, S, St, P} <- Ranked],
+    Fixtures = [F || {fixture, F, _P} <- Ranked],
+    Spheres0 =:= [] andalso throw({invalid, [<<"bodies">>], "the scene has no dynamic body (sphere)"}),
+    Spheres = with_rotation(Spheres0, Model),
+    MaxR = lists:max([R || {#sphere{radius = R}, _, _} <- Spheres]),
+    CellSize = case maps:find(<<"cell_size">>, Map) of
+                   {ok, _} -> positive(Map, <<"cell_size">>, []);
+                   error -> 2.0 * MaxR
+               end,
+    no_overlaps(Spheres, Fixtures, CellSize),
+    Buckets = override(buckets, Overrides,
+                       fun() -> case maps:is_key(<<"buckets">>, Map) of
+                                    true -> pos_int(Map, <<"buckets">>, [], required);
+                                    false -> undefined
+                                end end),
+    #scene{name = Name, file = File, duration_ms = Duration, substep_ms = Substep,
+           stride_ms = Stride, frame_ms = Frame, model = Model,
+           spheres = [S || {S, _, _} <- Spheres], initial = [St || {_, St, _} <- Spheres],
+           fixtures = Fixtures, cell_size = CellSize, buckets = Buckets}.
+
+override(Key, Overrides, Default) ->
+    case maps:find(Key, Overrides) of
+        {ok, V} -> V;
+        error -> Default()
+    end.
+
+multiple_of(X, Substep, Path) ->
+    X rem Substep =:= 0 orelse
+        throw({invalid, Path, fmt("~b ms is not a multiple of the substep (~b ms)", [X, Substep])}).
+
+-define(MODEL_KEYS, [<<"gravity">>, <<"restitution">>, <<"friction">>, <<"rotation">>,
+                     <<"integrator">>, <<"ccd">>, <<"rest_speed">>, <<"correction">>, <<"slop">>]).
+
+model(M, Dt) ->
+    P = [<<"model">>],
+    object(M, P),
+    known_keys(M, ?MODEL_KEYS, P),
+    Gravity = case maps:is_key(<<"gravity">>, M) of
+                  true -> vec(M, <<"gravity">>, P);
+                  false -> undefined
+              end,
+    Restitution = number(M, <<"restitution">>, P, 1.0),
+    (Restitution >= 0.0 andalso Restitution =< 1.0) orelse
+        invalid(P ++ [<<"restitution">>], "must be between 0 and 1, got ~p", [Restitution]),
+    Friction = case maps:is_key(<<"friction">>, M) of
+                   true -> non_negative(M, <<"friction">>, P);
+                   false -> undefined
+               end,
+    Integrator = case maps:get(<<"integrator">>, M, <<"symplectic_euler">>) of
+                     <<"symplectic_euler">> -> symplectic_euler;
+                     <<"verlet">> -> verlet;
+                     <<"explicit_euler">> -> explicit_euler;
+                     Other -> invalid(P ++ [<<"integrator">>],
+                                      "must be \"symplectic_euler\", \"verlet\" or \"explicit_euler\", got ~s",
+                                      [jiffy:encode(Other)])
+                 end,
+    RestDefault = case Gravity of
+                      undefined -> 0.0;
+                      _ -> 2.0 * rw_vec:len(Gravity) * Dt
+                  end,
+    #model{dt = Dt, gravity = case Gravity of {0.0, 0.0, 0.0} -> undefined; _ -> Gravity end,
+           restitution = Restitution, friction = Friction,
+           rotation = boolean(M, <<"rotation">>, P, false),
+           integrator = Integrator,
+           ccd = boolean(M, <<"ccd">>, P, false),
+           rest_speed = non_negative(M, <<"rest_speed">>, P, RestDefault),
+           correction = fraction(M, <<"correction">>, P, 0.2),
+           slop = non_negative(M, <<"slop">>, P, 0.0)}.
+
+-define(SPHERE_KEYS, [<<"id">>, <<"shape">>, <<"static">>, <<"radius">>, <<"mass">>,
+                      <<"position">>, <<"velocity">>, <<"angular_velocity">>]).
+-define(CYLINDER_KEYS, [<<"id">>, <<"shape">>, <<"static">>, <<"radius">>, <<"half_length">>,
+                        <<"axis">>, <<"position">>]).
+-define(PLANE_KEYS, [<<"id">>, <<"shape">>, <<"static">>, <<"normal">>, <<"offset">>]).
+-define(BOX_KEYS, [<<"id">>, <<"shape">>, <<"static">>, <<"half_extents">>, <<"position">>,
+                   <<"hollow">>]).
+
+%% A parsed body before ranking: {sphere, Id, Radius, Mass, State, Path}
+%% or {fixture, Id, Shape, Path}.
+body(B, P) ->
+    object(B, P),
+    Id = string_field(B, <<"id">>, P, required),
+    Shape = string_field(B, <<"shape">>, P, required),
+    Static = boolean(B, <<"static">>, P, Shape =/= <<"sphere">>),
+    case Shape of
+        <<"sphere">> ->
+            known_keys(B, ?SPHERE_KEYS, P),
+            Static andalso invalid(P ++ [<<"static">>], "static spheres are not supported; use a dynamic sphere", []),
+            St = #st{p = vec(B, <<"position">>, P),
+                     v = vec(B, <<"velocity">>, P, rw_vec:zero()),
+                     w = vec(B, <<"angular_velocity">>, P, undefined)},
+            {sphere, Id, positive(B, <<"radius">>, P), positive(B, <<"mass">>, P), St, P};
+        _ when Shape =:= <<"cylinder">>; Shape =:= <<"plane">>; Shape =:= <<"box">> ->
+            Static orelse invalid(P ++ [<<"static">>], "a ~s must be static (only spheres move)", [Shape]),
+            {fixture, Id, static_shape(Shape, B, P), P};
+        _ ->
+            invalid(P ++ [<<"shape">>], "unknown shape ~s (expected sphere, cylinder, plane or box)",
+                    [jiffy:encode(Shape)])
+    end.
+
+static_shape(<<"cylinder">>, B, P) ->
+    known_keys(B, ?CYLINDER_KEYS, P),
+    {cylinder, vec(B, <<"position">>, P), unit_vec(B, <<"axis">>, P, {0.0, 1.0, 0.0}),
+     positive(B, <<"radius">>, P), positive(B, <<"half_length">>, P)};
+static_shape(<<"plane">>, B, P) ->
+    known_keys(B, ?PLANE_KEYS, P),
+    {plane, unit_vec(B, <<"normal">>, P, required), number(B, <<"offset">>, P, 0.0)};
+static_shape(<<"box">>, B, P) ->
+    known_keys(B, ?BOX_KEYS, P),
+    E = vec(B, <<"half_extents">>, P),
+    [invalid(P ++ [<<"half_extents">>], "every half extent must be positive, got ~p", [X])
+     || X <- tuple_to_list(E), X =< 0.0],
+    Kind = case boolean(B, <<"hollow">>, P, false) of true -> hollow; false -> solid end,
+    {box, vec(B, <<"position">>, P), E, Kind}.
+
+unique_ids(Parsed) ->
+    lists:foldl(fun(Body, Seen) ->
+                        {Id, P} = id_and_path(Body),
+                        case maps:find(Id, Seen) of
+                            {ok, First} ->
+                                invalid(P ++ [<<"id">>], "duplicate id ~s (first used at ~s)",
+                                        [jiffy:encode(Id), format_path(First)]);
+                            error -> Seen#{Id => P}
+                        end
+                end, #{}, Parsed),
+    ok.
+
+id_and_path({sphere, Id, _, _, _, P}) -> {Id, P};
+id_and_path({fixture, Id, _, P}) -> {Id, P}.
+
+rank(Parsed) ->
+    Sorted = lists:sort(fun(A, B) -> element(1, id_and_path(A)) =< element(1, id_and_path(B)) end, Parsed),
+    [ranked(Idx, Body) || {Idx, Body} <- enumerate(Sorted)].
+
+ranked(Idx, {sphere, Id, R, M, St, P}) -> {sphere, rw_shape:sphere(Idx, Id, R, M), St, P};
+ranked(Idx, {fixture, Id, Shape, P}) -> {fixture, #fixture{idx = Idx, id = Id, shape = Shape}, P}.
+
+%% Angular state exists only where rotation is modelled.
+with_rotation(Spheres, #model{rotation = true}) ->
+    [{S, St#st{q = rw_quat:identity(), w = case W of undefined -> rw_vec:zero(); _ -> W end}, P}
+     || {S, #st{w = W} = St, P} <- Spheres];
+with_rotation(Spheres, #model{rotation = false}) ->
+    [invalid(P ++ [<<"angular_velocity">>], "needs \"rotation\": true in the model", [])
+     || {_, #st{w = W}, P} <- Spheres, W =/= undefined],
+    Spheres.
+
+%% No two spheres may overlap at the start, nor a sphere and a fixture.
+no_overlaps(Spheres, Fixtures, CellSize) ->
+    Grid = lists:foldl(
+             fun({#sphere{radius = R}, #st{p = Pos}, _} = S, G) ->
+                     lists:foldl(fun(C, G1) -> maps:update_with(C, fun(L) -> [S | L] end, [S], G1) end,
+                                 G, rw_hash:cells(rw_shape:sphere_aabb(Pos, R), CellSize))
+             end, #{}, Spheres),
+    maps:foreach(
+      fun(_Cell, InCell) ->
+              [overlap(A, B) || A <- InCell, B <- InCell, element(2, element(1, A)) < element(2, element(1, B))]
+      end, Grid),
+    [fixture_overlap(S, F) || S <- Spheres, F <- Fixtures],
+    ok.
+
+overlap({#sphere{radius = RA, id = IdA}, #st{p = PA}, PathA}, {#sphere{radius = RB, id = IdB}, #st{p = PB}, _}) ->
+    case rw_narrow:sphere_sphere(PA, RA, PB, RB) of
+        none -> ok;
+        #contact{depth = D} ->
+            invalid(PathA ++ [<<"position">>], "sphere ~s overlaps sphere ~s by ~g m at the start",
+                    [IdA, IdB, D])
+    end.
+
+fixture_overlap({#sphere{radius = R, id = Id}, #st{p = Pos}, Path}, #fixture{id = FId, shape = Shape}) ->
+    case rw_narrow:sphere_fixture(Pos, R, Shape) of
+        [] -> ok;
+        [{_, #contact{depth = D}} | _] ->
+            invalid(Path ++ [<<"position">>], "sphere ~s overlaps static ~s by ~g m at the start",
+                    [Id, FId, D])
+    end.
+
+%%% Generators: grids and seeded random sets of spheres
+
+-define(GRID_KEYS, [<<"type">>, <<"id_prefix">>, <<"count">>, <<"origin">>, <<"spacing">>,
+                    <<"radius">>, <<"mass">>, <<"velocity">>]).
+-define(RANDOM_KEYS, [<<"type">>, <<"id_prefix">>, <<"count">>, <<"seed">>, <<"min">>, <<"max">>,
+                      <<"radius">>, <<"mass">>, <<"speed">>, <<"velocity">>]).
+-define(MAX_GENERATED, 1000000).
+
+generators(Gens) ->
+    lists:append([generator(G, [<<"generators">>, I]) || {I, G} <- enumerate(Gens)]).
+
+generator(G, P) ->
+    object(G, P),
+    case string_field(G, <<"type">>, P, required) of
+        <<"grid">> -> grid(G, P);
+        <<"random">> -> random_spheres(G, P);
+        T -> invalid(P ++ [<<"type">>], "unknown generator type ~s (expected grid or random)",
+                     [jiffy:encode(T)])
+    end.
+
+grid(G, P) ->
+    known_keys(G, ?GRID_KEYS, P),
+    Prefix = string_field(G, <<"id_prefix">>, P, required),
+    [NX, NY, NZ] = int_list(G, <<"count">>, P, 3),
+    N = NX * NY * NZ,
+    N =< ?MAX_GENERATED orelse invalid(P ++ [<<"count">>], "more than ~b spheres", [?MAX_GENERATED]),
+    Origin = vec(G, <<"origin">>, P, rw_vec:zero()),
+    {SX, SY, SZ} = vec(G, <<"spacing">>, P),
+    R = positive(G, <<"radius">>, P),
+    M = positive(G, <<"mass">>, P),
+    V = vec(G, <<"velocity">>, P, rw_vec:zero()),
+    Width = length(integer_to_list(max(N - 1, 0))),
+    Points = [rw_vec:add(Origin, {I * SX, J * SY, K * SZ})
+              || I <- lists:seq(0, NX - 1), J <- lists:seq(0, NY - 1), K <- lists:seq(0, NZ - 1)],
+    [{sphere, gen_id(Prefix, Seq, Width), R, M, #st{p = Pos, v = V}, P}
+     || {Seq, Pos} <- enumerate(Points)].
+
+random_spheres(G, P) ->
+    known_keys(G, ?RANDOM_KEYS, P),
+    Prefix = string_field(G, <<"id_prefix">>, P, required),
+    N = pos_int(G, <<"count">>, P, required),
+    N =< ?MAX_GENERATED orelse invalid(P ++ [<<"count">>], "more than ~b spheres", [?MAX_GENERATED]),
+    Seed = non_neg_int(G, <<"seed">>, P, 1),
+    Lo = vec(G, <<"min">>, P),
+    Hi = vec(G, <<"max">>, P),
+    R = positive(G, <<"radius">>, P),
+    M = positive(G, <<"mass">>, P),
+    Speed = non_negative(G, <<"speed">>, P, 0.0),
+    V0 = vec(G, <<"velocity">>, P, rw_vec:zero()),
+    [invalid(P ++ [<<"max">>], "the region must be wider than a sphere (2 * radius) on every axis", [])
+     || {A, B} <- lists:zip(tuple_to_list(Lo), tuple_to_list(Hi)), B - A < 2.0 * R],
+    Width = length(integer_to_list(N - 1)),
+    Rand = rand:seed_s(exsss, Seed),
+    Placed = place(N, R, Lo, Hi, Rand, #{}, [], 0, P),
+    [{sphere, gen_id(Prefix, Seq, Width), R, M,
+      #st{p = Pos, v = rw_vec:add(V0, rw_vec:scale(Dir, Mag * Speed))}, P}
+     || {Seq, {Pos, Dir, Mag}} <- enumerate(Placed)].
+
+%% Rejection sampling: positions uniform in the region shrunk by R, kept
+%% when they touch no sphere placed before.
+place(0, _R, _Lo, _Hi, _Rand, _Grid, Acc, _Tries, _P) ->
+    lists:reverse(Acc);
+place(N, R, Lo, Hi, Rand0, Grid, Acc, Tries, P) ->
+    Tries < 1000 * (length(Acc) + N) orelse
+        invalid(P ++ [<<"count">>], "cannot place ~b spheres of radius ~g without overlap in the region",
+                [length(Acc) + N, R]),
+    {Pos, Rand1} = uniform_vec(rw_vec:add(Lo, {R, R, R}), rw_vec:sub(Hi, {R, R, R}), Rand0),
+    {Dir, Mag, Rand2} = random_direction(Rand1),
+    Cell = rw_hash:cell_of(Pos, 2.0 * R),
+    {CX, CY, CZ} = Cell,
+    Near = lists:append([maps:get({CX + I, CY + J, CZ + K}, Grid, [])
+                         || I <- [-1, 0, 1], J <- [-1, 0, 1], K <- [-1, 0, 1]]),
+    case lists:any(fun(Q) -> rw_vec:len2(rw_vec:sub(Q, Pos)) < 4.0 * R * R end, Near) of
+        true -> place(N, R, Lo, Hi, Rand2, Grid, Acc, Tries + 1, P);
+        false -> place(N - 1, R, Lo, Hi, Rand2, maps:update_with(Cell, fun(L) -> [Pos | L] end, [Pos], Grid),
+                       [{Pos, Dir, Mag} | Acc], Tries + 1, P)
+    end.
+
+uniform_vec({LX, LY, LZ}, {HX, HY, HZ}, R0) ->
+    {A, R1} = rand:uniform_s(R0),
+    {B, R2} = rand:uniform_s(R1),
+    {C, R3} = rand:uniform_s(R2),
+    {{LX + A * (HX - LX), LY + B * (HY - LY), LZ + C * (HZ - LZ)}, R3}.
+
+%% A uniformly distributed unit vector and a magnitude in [0, 1).
+random_direction(R0) ->
+    {U, R1} = rand:uniform_s(R0),
+    {Phi, R2} = rand:uniform_s(R1),
+    {Mag, R3} = rand:uniform_s(R2),
+    Z = 2.0 * U - 1.0,
+    S = math:sqrt(max(0.0, 1.0 - Z * Z)),
+    A = 2.0 * math:pi() * Phi,
+    {{S * math:cos(A), S * math:sin(A), Z}, Mag, R3}.
+
+gen_id(Prefix, Seq, Width) ->
+    iolist_to_binary([Prefix, string:pad(integer_to_list(Seq), Width, leading, $0)]).
+
+%%% Field readers: each throws {invalid, Path, Message}
+
+object(M, _P) when is_map(M) -> ok;
+object(X, P) -> invalid(P, "must be an object, got ~s", [describe(X)]).
+
+known_keys(M, Known, P) ->
+    case [K || K <- maps:keys(M), not lists:member(K, Known)] of
+        [] -> ok;
+        [K | _] -> invalid(P ++ [K], "unknown key (known keys: ~s)",
+                           [lists:join(", ", [binary_to_list(X) || X <- Known])])
+    end.
+
+get(M, K, P, Default) ->
+    case maps:find(K, M) of
+        {ok, V} -> V;
+        error when Default =:= required -> invalid(P ++ [K], "is required", []);
+        error -> {default, Default}
+    end.
+
+string_field(M, K, P, Default) ->
+    case get(M, K, P, Default) of
+        {default, D} -> D;
+        <<>> -> invalid(P ++ [K], "must not be empty", []);
+        B when is_binary(B) -> B;
+        X -> invalid(P ++ [K], "must be a string, got ~s", [describe(X)])
+    end.
+
+list_field(M, K, P) ->
+    case get(M, K, P, []) of
+        {default, D} -> D;
+        L when is_list(L) -> L;
+        X -> invalid(P ++ [K], "must be an array, got ~s", [describe(X)])
+    end.
+
+boolean(M, K, P, Default) ->
+    case get(M, K, P, Default) of
+        {default, D} -> D;
+        B when is_boolean(B) -> B;
+        X -> invalid(P ++ [K], "must be true or false, got ~s", [describe(X)])
+    end.
+
+pos_int(M, K, P, Default) ->
+    case get(M, K, P, Default) of
+        {default, D} -> D;
+        I when is_integer(I), I > 0, I =< 1 bsl 40 -> I;
+        I when is_integer(I), I > 0 -> invalid(P ++ [K], "is too large (~b)", [I]);
+        X -> invalid(P ++ [K], "must be a positive integer, got ~s", [describe(X)])
+    end.
+
+non_neg_int(M, K, P, Default) ->
+    case get(M, K, P, Default) of
+        {default, D} -> D;
+        I when is_integer(I), I >= 0, I < 1 bsl 64 -> I;
+        X -> invalid(P ++ [K], "must be a non-negative integer, got ~s", [describe(X)])
+    end.
+
+int_list(M, K, P, Len) ->
+    case get(M, K, P, required) of
+        L when is_list(L), length(L) =:= Len ->
+            [case X of
+                 I when is_integer(I), I > 0, I =< ?MAX_GENERATED -> I;
+                 _ -> invalid(P ++ [K, J], "must be a positive integer up to ~b, got ~s",
+                              [?MAX_GENERATED, describe(X)])
+             end || {J, X} <- enumerate(L)];
+        X -> invalid(P ++ [K], "must be an array of ~b positive integers, got ~s", [Len, describe(X)])
+    end.
+
+number(M, K, P, Default) ->
+    case get(M, K, P, Default) of
+        {default, D} -> D;
+        X -> to_float(X, P ++ [K])
+    end.
+
+to_float(X, Path) when is_integer(X); is_float(X) ->
+    case abs(X) =< ?MAX_ABS of
+        true -> float(X);
+        false -> invalid(Path, "must be at most ~g in magnitude, got ~s", [?MAX_ABS, describe(X)])
+    end;
+to_float(X, Path) ->
+    invalid(Path, "must be a number, got ~s", [describe(X)]).
+
+positive(M, K, P) ->
+    case number(M, K, P, required) of
+        X when X > 0.0 -> X;
+        X -> invalid(P ++ [K], "must be positive, got ~p", [X])
+    end.
+
+non_negative(M, K, P) -> non_negative(M, K, P, required).
+non_negative(M, K, P, Default) ->
+    case number(M, K, P, Default) of
+        X when X >= 0.0 -> X;
+        X -> invalid(P ++ [K], "must not be negative, got ~p", [X])
+    end.
+
+fraction(M, K, P, Default) ->
+    case number(M, K, P, Default) of
+        X when X >= 0.0, X =< 1.0 -> X;
+        X -> invalid(P ++ [K], "must be between 0 and 1, got ~p", [X])
+    end.
+
+vec(M, K, P) -> vec(M, K, P, required).
+vec(M, K, P, Default) ->
+    case get(M, K, P, Default) of
+        {default, D} -> D;
+        [X, Y, Z] -> {to_float(X, P ++ [K, 0]), to_float(Y, P ++ [K, 1]), to_float(Z, P ++ [K, 2])};
+        X -> invalid(P ++ [K], "must be an array of 3 numbers, got ~s", [describe(X)])
+    end.
+
+unit_vec(M, K, P, Default) ->
+    case vec(M, K, P, Default) of
+        {0.0, 0.0, 0.0} -> invalid(P ++ [K], "must not be the zero vector", []);
+        V -> rw_vec:norm(V)
+    end.
+
+invalid(Path, Fmt, Args) -> throw({invalid, Path, fmt(Fmt, Args)}).
+
+fmt(Fmt, Args) -> lists:flatten(io_lib:format(Fmt, Args)).
+
+describe(X) ->
+    Text = try iolist_to_binary(jiffy:encode(X)) catch _:_ -> <<"an unprintable value">> end,
+    case byte_size(Text) > 40 of
+        true -> [binary:part(Text, 0, 37), "..."];
+        false -> Text
+    end.
+
+-spec format_path(path()) -> string().
+format_path(Path) ->
+    lists:flatten(["$" | [case S of
+                              I when is_integer(I) -> ["[", integer_to_list(I), "]"];
+                              B -> [".", binary_to_list(B)]
+                          end || S <- Path]]).
+
+enumerate(L) -> lists:zip(lists:seq(0, length(L) - 1), L).

@@ -1,0 +1,129 @@
+%% The `rigidwarp` escript: batch runs of scene files.
+%% Exit codes: 0 ok, 2 bad input (flags or scene), 1 runtime failure.
+-module(rw_cli).
+-export([main/1, parse/1]).
+
+-define(USAGE,
+"usage: rigidwarp <command> [options]
+
+commands:
+  run SCENE.json [options]   run a scene; the summary JSON is the last line on stdout
+      --engine reference     engine to run (reference)
+      --frames FILE          write committed frames as JSON Lines to FILE
+      --until MS             simulate up to MS milliseconds (default: the scene's duration_ms)
+      --substep MS           substep in ms (default: the scene's substep_ms)
+      --stride MS            LVT_ub - GVT in ms (default: the scene's stride_ms)
+      --frame-ms MS          frame interval in ms (default: the scene's frame_ms)
+      --quiet                no progress lines on stderr
+  validate SCENE.json        check a scene file and say what is wrong with it
+  scenes [DIR]               list the scenes in DIR (default: scenarios)
+  help                       this text
+
+exit codes: 0 ok, 1 runtime failure, 2 bad input
+").
+
+-spec main([string()]) -> no_return().
+main(Args) ->
+    Code = try dispatch(Args)
+           catch
+               throw:{usage, Msg} ->
+                   io:format(standard_error, "rigidwarp: ~ts~n(see rigidwarp help)~n", [Msg]),
+                   2;
+               throw:{bad_input, Msg} ->
+                   io:format(standard_error, "rigidwarp: ~ts~n", [Msg]),
+                   2;
+               Class:Reason:Stack ->
+                   io:format(standard_error, "rigidwarp: internal error: ~p:~p~n~p~n", [Class, Reason, Stack]),
+                   1
+           end,
+    halt(Code).
+
+dispatch([]) -> io:put_chars(standard_error, ?USAGE), 2;
+dispatch([Help | _]) when Help =:= "help"; Help =:= "--help"; Help =:= "-h" ->
+    io:put_chars(?USAGE), 0;
+dispatch(["run" | Args]) ->
+    case lists:member("--help", Args) of
+        true -> io:put_chars(?USAGE), 0;
+        false -> run(parse(Args))
+    end;
+dispatch(["validate", File]) ->
+    case rigidwarp:load(File, #{}) of
+        {ok, _} -> io:format("~ts: ok~n", [File]), 0;
+        {error, Msg} -> throw({bad_input, Msg})
+    end;
+dispatch(["validate" | _]) -> throw({usage, "validate takes exactly one scene file"});
+dispatch(["scenes"]) -> scenes("scenarios");
+dispatch(["scenes", Dir]) -> scenes(Dir);
+dispatch([Cmd | _]) -> throw({usage, "unknown command " ++ Cmd}).
+
+scenes(Dir) ->
+    Files = lists:sort(filelib:wildcard(filename:join(Dir, "*.json"))),
+    Files =:= [] andalso throw({bad_input, "no scene files in " ++ Dir}),
+    [case rigidwarp:load(F, #{}) of
+         {ok, S} -> io:format("~-32ts ~5b bodies  ~6b ms~n",
+                              [filename:basename(F), length(element(9, S)), element(4, S)]);
+         {error, Msg} -> io:format("~-32ts INVALID: ~ts~n", [filename:basename(F), Msg])
+     end || F <- Files],
+    0.
+
+%% Flags to {SceneFile, Options, Quiet}.
+-spec parse([string()]) -> {string(), map(), boolean()}.
+parse(Args) -> parse(Args, undefined, #{}, false).
+
+parse([], undefined, _, _) -> throw({usage, "run needs a scene file"});
+parse([], File, Opts, Quiet) -> {File, Opts, Quiet};
+parse(["--quiet" | Rest], F, O, _) -> parse(Rest, F, O, true);
+parse(["--engine", "reference" | Rest], F, O, Q) -> parse(Rest, F, O#{engine => reference}, Q);
+parse(["--engine", E | _], _, _, _) -> throw({usage, "--engine must be reference, got " ++ E});
+parse(["--frames", Out | Rest], F, O, Q) -> parse(Rest, F, O#{frames => Out}, Q);
+parse(["--until", V | Rest], F, O, Q) -> parse(Rest, F, O#{until => pos_int("--until", V)}, Q);
+parse(["--substep", V | Rest], F, O, Q) -> parse(Rest, F, O#{substep => pos_int("--substep", V)}, Q);
+parse(["--stride", V | Rest], F, O, Q) -> parse(Rest, F, O#{stride => pos_int("--stride", V)}, Q);
+parse(["--frame-ms", V | Rest], F, O, Q) -> parse(Rest, F, O#{frame_ms => pos_int("--frame-ms", V)}, Q);
+parse([[$- | _] = Flag], _, _, _) -> throw({usage, Flag ++ " needs a value or is unknown"});
+parse([[$- | _] = Flag | _], _, _, _) -> throw({usage, "unknown flag " ++ Flag});
+parse([File | Rest], undefined, O, Q) -> parse(Rest, File, O, Q);
+parse([Extra | _], _, _, _) -> throw({usage, "unexpected argument " ++ Extra}).
+
+pos_int(Flag, V) ->
+    try list_to_integer(V) of
+        I when I > 0, I =< 1 bsl 40 -> I;
+        _ -> throw({usage, Flag ++ " must be a positive integer (ms), got " ++ V})
+    catch
+        error:badarg -> throw({usage, Flag ++ " must be a positive integer (ms), got " ++ V})
+    end.
+
+run({File, Opts, Quiet}) ->
+    {ok, Scene} = case rigidwarp:load(File, Opts) of
+                      {ok, _} = Ok -> Ok;
+                      {error, Msg} -> throw({bad_input, Msg})
+                  end,
+    T0 = erlang:monotonic_time(millisecond),
+    Total = element(4, Scene),
+    Progress = case Quiet of
+                   true -> fun(_) -> ok end;
+                   false -> progress(T0, Total)
+               end,
+    case rigidwarp:run_scene(Scene, Opts#{on_frame => Progress}) of
+        {ok, Summary} ->
+            io:put_chars([jiffy:encode(Summary), $\n]),
+            0;
+        {error, Msg2} ->
+            throw({bad_input, Msg2})
+    end.
+
+%% A plain line on stderr at most once a second.
+progress(T0, Total) ->
+    Last = erlang:make_ref(),
+    put(Last, T0),
+    fun({frame, T, _}) ->
+            Now = erlang:monotonic_time(millisecond),
+            case Now - get(Last) >= 1000 orelse T =:= Total of
+                true ->
+                    put(Last, Now),
+                    Wall = max(Now - T0, 1),
+                    io:format(standard_error, "rigidwarp: t=~b/~b ms  realtime x~.2f  wall ~.1f s~n",
+                              [T, Total, T / Wall, Wall / 1000]);
+                false -> ok
+            end
+    end.

@@ -1,0 +1,24 @@
+%% Volumetric hashing: which integer cells of Z^3 a box touches, and which
+%% bucket of a pool owns a cell. Cells are unbounded (bignums far away).
+-module(rw_hash).
+-export([cells/2, cell_of/2, bucket/2]).
+-export_type([cell/0]).
+
+-type cell() :: {integer(), integer(), integer()}.
+
+%% Every cell of side CellSize that the box touches, in lexicographic
+%% order (the order in which the TVHT locks them, Lemma 1).
+-spec cells(rw_shape:aabb(), float()) -> [cell()].
+cells({{X0, Y0, Z0}, {X1, Y1, Z1}}, S) ->
+    [{X, Y, Z} || X <- lists:seq(idx(X0, S), idx(X1, S)),
+                  Y <- lists:seq(idx(Y0, S), idx(Y1, S)),
+                  Z <- lists:seq(idx(Z0, S), idx(Z1, S))].
+
+-spec cell_of(rw_vec:vec(), float()) -> cell().
+cell_of({X, Y, Z}, S) -> {idx(X, S), idx(Y, S), idx(Z, S)}.
+
+%% Bucket index in 0..N-1.
+-spec bucket(cell(), pos_integer()) -> non_neg_integer().
+bucket(Cell, N) -> erlang:phash2(Cell, N).
+
+idx(X, S) -> floor(X / S).

@@ -1,0 +1,267 @@
+%% Narrowphase: contacts between spheres, and between a sphere and a static
+%% shape, at one instant or swept over one substep. Normals point from the
+%% first body to the second (from the sphere to the fixture). Every function
+%% is total: degenerate input (coincident centres, zero motion) yields a
+%% definite unit normal, never NaN.
+-module(rw_narrow).
+-include("rw_physics.hrl").
+-export([sphere_sphere/4, swept_sphere_sphere/6, sphere_fixture/3, swept_sphere_fixture/4]).
+-export_type([feature_contact/0]).
+
+%% A fixture can touch a sphere at several features (a container's walls).
+-type feature_contact() :: {Feature :: non_neg_integer(), #contact{}}.
+
+-define(FALLBACK_NORMAL, {0.0, 1.0, 0.0}).
+
+-spec sphere_sphere(rw_vec:vec(), float(), rw_vec:vec(), float()) -> #contact{} | none.
+sphere_sphere(PA, RA, PB, RB) ->
+    D = rw_vec:sub(PB, PA),
+    Sum = RA + RB,
+    L2 = rw_vec:len2(D),
+    case L2 < Sum * Sum of
+        false -> none;
+        true ->
+            L = math:sqrt(L2),
+            N = case L > 0.0 of
+                    true -> rw_vec:scale(D, 1.0 / L);
+                    false -> ?FALLBACK_NORMAL
+                end,
+            #contact{n = N, depth = Sum - L, toi = 0.0}
+    end.
+
+%% Spheres at PA and PB moving by DA and DB over the substep: overlapping
+%% now, or first touching at fraction Toi of the substep.
+-spec swept_sphere_sphere(rw_vec:vec(), rw_vec:vec(), float(), rw_vec:vec(), rw_vec:vec(), float()) ->
+          #contact{} | none.
+swept_sphere_sphere(PA, DA, RA, PB, DB, RB) ->
+    case sphere_sphere(PA, RA, PB, RB) of
+        none ->
+            X0 = rw_vec:sub(PB, PA),
+            DR = rw_vec:sub(DB, DA),
+            Sum = RA + RB,
+            A = rw_vec:len2(DR),
+            B = 2.0 * rw_vec:dot(X0, DR),
+            C = rw_vec:len2(X0) - Sum * Sum,
+            Disc = B * B - 4.0 * A * C,
+            case A > 0.0 andalso B < 0.0 andalso Disc >= 0.0 of
+                false -> none;
+                true ->
+                    S = (-B - math:sqrt(Disc)) / (2.0 * A),
+                    case S >= 0.0 andalso S =< 1.0 of
+                        false -> none;
+                        true ->
+                            N = unit_or_fallback(rw_vec:madd(X0, DR, S)),
+                            #contact{n = N, depth = Sum - math:sqrt(rw_vec:len2(X0)), toi = S}
+                    end
+            end;
+        Contact ->
+            Contact
+    end.
+
+-spec sphere_fixture(rw_vec:vec(), float(), rw_shape:static_shape()) -> [feature_contact()].
+sphere_fixture(P, R, {plane, N, Off}) ->
+    Depth = R - (rw_vec:dot(N, P) - Off),
+    case Depth > 0.0 of
+        true -> [{0, #contact{n = rw_vec:neg(N), depth = Depth}}];
+        false -> []
+    end;
+sphere_fixture(P, R, {box, C, E, hollow}) ->
+    walls(P, R, C, E);
+sphere_fixture(P, R, {box, C, E, solid}) ->
+    solid_box(P, R, C, E);
+sphere_fixture(P, R, {cylinder, C, Axis, CR, H}) ->
+    cylinder(P, R, C, Axis, CR, H).
+
+%% Sphere at P moving by D during the substep.
+-spec swept_sphere_fixture(rw_vec:vec(), rw_vec:vec(), float(), rw_shape:static_shape()) ->
+          [feature_contact()].
+swept_sphere_fixture(P, D, R, {plane, N, Off} = Shape) ->
+    case sphere_fixture(P, R, Shape) of
+        [] -> swept_half_space(0, P, D, R, N, Off);
+        Hit -> Hit
+    end;
+swept_sphere_fixture(P, D, R, {box, C, E, hollow}) ->
+    %% each wall is a half-space whose inside faces the box centre
+    lists:append(
+      [case overlapping_wall(F, P, R, C, E) of
+           [] ->
+               {N, Off} = wall_plane(F, C, E),
+               swept_half_space(F, P, D, R, N, Off);
+           Hit -> Hit
+       end || F <- [0, 1, 2, 3, 4, 5]]);
+swept_sphere_fixture(P, D, R, {box, C, E, solid}) ->
+    case solid_box(P, R, C, E) of
+        [] -> swept_box(P, D, R, C, E);
+        Hit -> Hit
+    end;
+swept_sphere_fixture(P, D, R, {cylinder, C, Axis, CR, H}) ->
+    case cylinder(P, R, C, Axis, CR, H) of
+        [] -> swept_by_samples(P, D, R, fun(Q) -> cylinder(Q, R, C, Axis, CR, H) end);
+        Hit -> Hit
+    end.
+
+%%% Internals
+
+unit_or_fallback(V) ->
+    L = rw_vec:len(V),
+    case L > 0.0 of
+        true -> rw_vec:scale(V, 1.0 / L);
+        false -> ?FALLBACK_NORMAL
+    end.
+
+%% A solid half-space {x | N.x < Off}, the sphere on the outside moving by D.
+swept_half_space(F, P, D, R, N, Off) ->
+    Gap = rw_vec:dot(N, P) - Off - R,
+    Dn = rw_vec:dot(N, D),
+    case Gap >= 0.0 andalso Dn < 0.0 andalso Gap + Dn =< 0.0 of
+        true -> [{F, #contact{n = rw_vec:neg(N), depth = -Gap, toi = Gap / -Dn}}];
+        false -> []
+    end.
+
+%% Wall F of a container (2*axis for the lower wall, 2*axis+1 for the upper)
+%% as the half-space plane {x | N.x >= Off} with N pointing into the box.
+wall_plane(F, C, E) ->
+    Axis = F div 2,
+    Ci = element(Axis + 1, C),
+    Ei = element(Axis + 1, E),
+    case F rem 2 of
+        0 -> {unit(Axis, 1.0), Ci - Ei};
+        1 -> {unit(Axis, -1.0), -(Ci + Ei)}
+    end.
+
+overlapping_wall(F, P, R, C, E) ->
+    {N, Off} = wall_plane(F, C, E),
+    Depth = R - (rw_vec:dot(N, P) - Off),
+    case Depth > 0.0 of
+        true -> [{F, #contact{n = rw_vec:neg(N), depth = Depth}}];
+        false -> []
+    end.
+
+walls(P, R, C, E) ->
+    lists:append([overlapping_wall(F, P, R, C, E) || F <- [0, 1, 2, 3, 4, 5]]).
+
+unit(0, S) -> {S, 0.0, 0.0};
+unit(1, S) -> {0.0, S, 0.0};
+unit(2, S) -> {0.0, 0.0, S}.
+
+solid_box({PX, PY, PZ} = P, R, {CX, CY, CZ} = C, {EX, EY, EZ} = E) ->
+    Closest = {clamp(PX, CX - EX, CX + EX), clamp(PY, CY - EY, CY + EY), clamp(PZ, CZ - EZ, CZ + EZ)},
+    case Closest =:= P of
+        true ->
+            %% centre inside: leave through the nearest face
+            Rel = rw_vec:sub(P, C),
+            Slack = [{element(I + 1, E) - abs(element(I + 1, Rel)), I} || I <- [0, 1, 2]],
+            {S, I} = lists:min(Slack),
+            Sign = case element(I + 1, Rel) >= 0.0 of true -> -1.0; false -> 1.0 end,
+            [{0, #contact{n = unit(I, Sign), depth = R + S}}];
+        false ->
+            point_contact(P, R, Closest)
+    end.
+
+point_contact(P, R, Closest) ->
+    D = rw_vec:sub(Closest, P),
+    L2 = rw_vec:len2(D),
+    case L2 < R * R of
+        true ->
+            L = math:sqrt(L2),
+            [{0, #contact{n = rw_vec:scale(D, 1.0 / L), depth = R - L}}];
+        false ->
+            []
+    end.
+
+clamp(X, Lo, Hi) -> max(Lo, min(Hi, X)).
+
+cylinder(P, R, C, Axis, CR, H) ->
+    Rel = rw_vec:sub(P, C),
+    H0 = rw_vec:dot(Rel, Axis),
+    Radial = rw_vec:madd(Rel, Axis, -H0),
+    RL = rw_vec:len(Radial),
+    case abs(H0) =< H andalso RL =< CR of
+        true ->
+            Side = CR - RL,
+            Cap = H - abs(H0),
+            case Side < Cap of
+                true ->
+                    N = case RL > 0.0 of
+                            true -> rw_vec:scale(Radial, -1.0 / RL);
+                            false -> any_perpendicular(Axis)
+                        end,
+                    [{0, #contact{n = N, depth = R + Side}}];
+                false ->
+                    Sign = case H0 >= 0.0 of true -> -1.0; false -> 1.0 end,
+                    [{0, #contact{n = rw_vec:scale(Axis, Sign), depth = R + Cap}}]
+            end;
+        false ->
+            HC = clamp(H0, -H, H),
+            RadialC = case RL > CR of
+                          true -> rw_vec:scale(Radial, CR / RL);
+                          false -> Radial
+                      end,
+            Closest = rw_vec:add(rw_vec:madd(C, Axis, HC), RadialC),
+            point_contact(P, R, Closest)
+    end.
+
+any_perpendicular({AX, _, _} = Axis) ->
+    Other = case abs(AX) < 0.9 of true -> {1.0, 0.0, 0.0}; false -> {0.0, 1.0, 0.0} end,
+    rw_vec:norm(rw_vec:cross(Axis, Other)).
+
+%% Segment P -> P+D against the box grown by R (slab test). Conservative at
+%% edges and corners, where the grown box is larger than the rounded one.
+swept_box(P, D, R, C, E) ->
+    Lo = rw_vec:sub(rw_vec:sub(C, E), {R, R, R}),
+    Hi = rw_vec:add(rw_vec:add(C, E), {R, R, R}),
+    case slabs(0, P, D, Lo, Hi, 0.0, 1.0, none) of
+        {TEnter, Axis} when TEnter > 0.0 ->
+            Sign = case element(Axis + 1, D) > 0.0 of true -> 1.0; false -> -1.0 end,
+            Gap = slab_gap(P, C, E, R),
+            [{0, #contact{n = unit(Axis, Sign), depth = -Gap, toi = TEnter}}];
+        _ ->
+            []
+    end.
+
+slabs(3, _P, _D, _Lo, _Hi, TMin, TMax, Axis) ->
+    case TMin =< TMax of
+        true -> {TMin, Axis};
+        false -> none
+    end;
+slabs(I, P, D, Lo, Hi, TMin, TMax, Axis) ->
+    Pi = element(I + 1, P), Di = element(I + 1, D),
+    Li = element(I + 1, Lo), Hi_ = element(I + 1, Hi),
+    case Di == 0.0 of
+        true ->
+            case Pi >= Li andalso Pi =< Hi_ of
+                true -> slabs(I + 1, P, D, Lo, Hi, TMin, TMax, Axis);
+                false -> none
+            end;
+        false ->
+            T1 = (Li - Pi) / Di, T2 = (Hi_ - Pi) / Di,
+            {TNear, TFar} = {min(T1, T2), max(T1, T2)},
+            {TMin2, Axis2} = case TNear > TMin of
+                                 true -> {TNear, I};
+                                 false -> {TMin, Axis}
+                             end,
+            TMax2 = min(TMax, TFar),
+            case TMin2 =< TMax2 of
+                true -> slabs(I + 1, P, D, Lo, Hi, TMin2, TMax2, Axis2);
+                false -> none
+            end
+    end.
+
+slab_gap({PX, PY, PZ}, {CX, CY, CZ}, {EX, EY, EZ}, R) ->
+    Closest = {clamp(PX, CX - EX, CX + EX), clamp(PY, CY - EY, CY + EY), clamp(PZ, CZ - EZ, CZ + EZ)},
+    rw_vec:len(rw_vec:sub(Closest, {PX, PY, PZ})) - R.
+
+%% Shapes without a closed-form swept test are sampled along the path at
+%% steps of a quarter radius (at most 256 samples).
+swept_by_samples(P, D, R, Test) ->
+    Len = rw_vec:len(D),
+    N = min(256, max(1, ceil(Len / (0.25 * R)))),
+    sample(1, N, P, D, Test).
+
+sample(I, N, _P, _D, _Test) when I > N -> [];
+sample(I, N, P, D, Test) ->
+    S = I / N,
+    case Test(rw_vec:madd(P, D, S)) of
+        [] -> sample(I + 1, N, P, D, Test);
+        Hits -> [{F, C#contact{depth = 0.0, toi = S}} || {F, C} <- Hits]
+    end.

@@ -1,0 +1,89 @@
+%% Contact response as velocity changes. An impulse changes velocities only;
+%% penetration is removed by a pseudo-velocity (split impulse) that moves the
+%% next position and is then forgotten, so it never adds kinetic energy and
+%% never moves a position that was already computed.
+%%
+%% A pair is always evaluated in canonical order (lower index first), so the
+%% two bodies receive bit-identical halves of the same computation.
+-module(rw_response).
+-include("rw_physics.hrl").
+-export([pair/6, fixture/4]).
+-export_type([effect/0]).
+
+%% What one contact does to one body: change of velocity, of angular
+%% velocity (undefined without rotation) and pseudo-velocity.
+-type effect() :: {Dv :: rw_vec:vec(), Dw :: rw_vec:vec() | undefined, Du :: rw_vec:vec()}.
+
+-define(TINY, 1.0e-12).
+
+-spec pair(#model{}, #sphere{}, #st{}, #sphere{}, #st{}, #contact{}) -> {effect(), effect()}.
+pair(M, #sphere{inv_mass = ImA, inv_inertia = IiA, radius = RA}, #st{v = VA, w = WA},
+     #sphere{inv_mass = ImB, inv_inertia = IiB, radius = RB}, #st{v = VB, w = WB}, Contact) ->
+    impulse(M, ImA, IiA, RA, VA, WA, ImB, IiB, RB, VB, WB, Contact).
+
+%% Sphere against a static body: the fixture has infinite mass and no motion.
+-spec fixture(#model{}, #sphere{}, #st{}, #contact{}) -> effect().
+fixture(#model{rotation = Rot} = M, #sphere{inv_mass = Im, inv_inertia = Ii, radius = R}, #st{v = V, w = W},
+        Contact) ->
+    Still = case Rot of true -> rw_vec:zero(); false -> undefined end,
+    {EffA, _} = impulse(M, Im, Ii, R, V, W, 0.0, 0.0, 0.0, rw_vec:zero(), Still, Contact),
+    EffA.
+
+impulse(#model{rotation = Rot, restitution = E, rest_speed = RestSpeed, friction = Mu,
+               correction = Beta, slop = Slop, dt = Dt},
+        ImA, IiA, RA, VA, WA, ImB, IiB, RB, VB, WB, #contact{n = N, depth = Depth, toi = Toi}) ->
+    %% velocities of the two surface points in contact
+    {VcA, VcB} = case Rot of
+                     true -> {rw_vec:add(VA, rw_vec:cross(WA, rw_vec:scale(N, RA))),
+                              rw_vec:add(VB, rw_vec:cross(WB, rw_vec:scale(N, -RB)))};
+                     false -> {VA, VB}
+                 end,
+    Vrel = rw_vec:sub(VcB, VcA),
+    Vn = rw_vec:dot(Vrel, N),
+    K = ImA + ImB,
+    Jn = case Vn < 0.0 of
+             true ->
+                 Bounce = case -Vn > RestSpeed of true -> E; false -> 0.0 end,
+                 -(1.0 + Bounce) * Vn / K;
+             false -> 0.0
+         end,
+    %% impulse on A (B receives the opposite)
+    JA = friction(Mu, Rot, Jn, Vrel, Vn, N, K, RA * RA * IiA + RB * RB * IiB, rw_vec:scale(N, -Jn)),
+    DvA = rw_vec:scale(JA, ImA),
+    DvB = rw_vec:scale(JA, -ImB),
+    {DwA, DwB} = case Rot of
+                     true ->
+                         Arm = rw_vec:cross(N, JA),
+                         %% r x J with r = RA n for A and r = -RB n, J = -JA for B
+                         {rw_vec:scale(Arm, RA * IiA), rw_vec:scale(Arm, RB * IiB)};
+                     false -> {undefined, undefined}
+                 end,
+    Pen = Depth - Slop,
+    {UA, UB} = case Pen > 0.0 of
+                   true ->
+                       Ub = Beta * Pen / Dt / K,
+                       {rw_vec:scale(N, -Ub * ImA), rw_vec:scale(N, Ub * ImB)};
+                   false -> {rw_vec:zero(), rw_vec:zero()}
+               end,
+    %% a swept contact at fraction Toi: move with the old velocity until then
+    {DuA, DuB} = case Toi > 0.0 of
+                     true -> {rw_vec:madd(UA, DvA, -Toi), rw_vec:madd(UB, DvB, -Toi)};
+                     false -> {UA, UB}
+                 end,
+    {{DvA, DwA, DuA}, {DvB, DwB, DuB}}.
+
+%% Coulomb friction on top of the normal impulse JNormal (both on A).
+friction(undefined, _Rot, _Jn, _Vrel, _Vn, _N, _K, _KRot, JNormal) -> JNormal;
+friction(_Mu, _Rot, Jn, _Vrel, _Vn, _N, _K, _KRot, JNormal) when Jn =< 0.0 -> JNormal;
+friction(Mu, Rot, Jn, Vrel, Vn, N, K, KRot, JNormal) ->
+    Vt = rw_vec:madd(Vrel, N, -Vn),
+    Lt = rw_vec:len(Vt),
+    case Lt > ?TINY of
+        true ->
+            Kt = case Rot of true -> K + KRot; false -> K end,
+            Jt = min(Lt / Kt, Mu * Jn),
+            %% A is dragged along the motion of B relative to A
+            rw_vec:madd(JNormal, Vt, Jt / Lt);
+        false ->
+            JNormal
+    end.
