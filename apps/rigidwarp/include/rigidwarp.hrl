@@ -17,3 +17,16 @@
     cell_size :: float(),
     buckets :: pos_integer() | undefined
 }).
+
+%% What every process of one Time Warp simulation shares: set once at start.
+-record(sim, {
+    scene :: #scene{},
+    n :: pos_integer(),                       % dynamic bodies
+    end_ms :: non_neg_integer(),
+    buckets :: tuple(),                       % bucket pids, index 0 at element 1
+    gvt :: pid() | undefined,
+    records :: ets:tid(),                     % {{T, Idx}, BodyFrame}: committed states
+    counts :: ets:tid(),                      % {T, Committed}: bodies committed at T
+    ring :: ets:tid(),                        % committed frames (see rw_gvt)
+    stats :: counters:counters_ref()          % see rw_timewarp:stat_index/1
+}).

@@ -7,14 +7,17 @@
 -export([run/2, run_scene/2, load/2, help/0]).
 -export_type([run_options/0, summary/0]).
 
--type run_options() :: #{engine => reference,
+-type run_options() :: #{engine => timewarp | reference,
+                         buckets => pos_integer(), schedulers => pos_integer(),
+                         watchdog_ms => pos_integer(),
                          until => pos_integer(), substep => pos_integer(),
                          stride => pos_integer(), frame_ms => pos_integer(),
                          frames => file:filename(),
                          on_frame => fun((rw_reference:frame()) -> any())}.
 -type summary() :: #{atom() => term()}.
 
--define(OPTION_KEYS, [engine, until, substep, stride, frame_ms, frames, on_frame]).
+-define(OPTION_KEYS, [engine, until, substep, stride, frame_ms, frames, on_frame, buckets, schedulers,
+                      watchdog_ms]).
 
 -spec help() -> ok.
 help() ->
@@ -49,11 +52,14 @@ run(File, Opts) ->
 %% Run a scene that load/2 returned.
 -spec run_scene(#scene{}, run_options()) -> {ok, summary()} | {error, string()}.
 run_scene(Scene, Opts) ->
-    Engine = maps:get(engine, Opts, reference),
+    Engine = maps:get(engine, Opts, timewarp),
     case open_sink(Opts) of
         {ok, Sink, Close} ->
             T0 = erlang:monotonic_time(microsecond),
-            try rw_reference:run(Scene, #{on_frame => Sink}) of
+            try run_engine(Engine, Scene, Sink, Opts) of
+                {error, Reason} ->
+                    ok = Close(abort),
+                    {error, describe_failure(Reason)};
                 {ok, Stats} ->
                     Wall = erlang:monotonic_time(microsecond) - T0,
                     ok = Close(ok),
@@ -66,6 +72,24 @@ run_scene(Scene, Opts) ->
         {error, _} = Error ->
             Error
     end.
+
+run_engine(reference, Scene, Sink, _Opts) ->
+    rw_reference:run(Scene, #{on_frame => Sink});
+run_engine(timewarp, Scene, Sink, Opts) ->
+    with_schedulers(maps:get(schedulers, Opts, undefined),
+                    fun() -> rw_timewarp:run(Scene, (maps:with([buckets, watchdog_ms], Opts))#{on_frame => Sink}) end).
+
+with_schedulers(undefined, Fun) -> Fun();
+with_schedulers(N, Fun) ->
+    Old = erlang:system_flag(schedulers_online, min(N, erlang:system_info(schedulers))),
+    try Fun() after erlang:system_flag(schedulers_online, Old) end.
+
+describe_failure({stalled, Gvt, Report}) ->
+    lists:flatten(io_lib:format("GVT did not advance past ~b ms:~n~ts", [Gvt, Report]));
+describe_failure({crashed, Reason}) ->
+    lists:flatten(io_lib:format("the simulation crashed: ~p", [Reason]));
+describe_failure(Other) ->
+    lists:flatten(io_lib:format("~p", [Other])).
 
 open_sink(Opts) ->
     User = maps:get(on_frame, Opts, fun(_) -> ok end),
@@ -82,14 +106,13 @@ open_sink(Opts) ->
             end
     end.
 
-summary(#scene{name = Name, substep_ms = Dt, stride_ms = Stride, spheres = Spheres}, Engine,
-        #{sim_ms := SimMs, frames := Frames} = Stats, WallUs) ->
+%% The engine's own counters, plus what every run reports.
+summary(#scene{name = Name, substep_ms = Dt, stride_ms = Stride, spheres = Spheres, duration_ms = SimMs},
+        Engine, Stats, WallUs) ->
     WallMs = WallUs / 1000.0,
-    #{scene => Name, engine => Engine, bodies => length(Spheres), substep_ms => Dt,
-      stride_ms => Stride, sim_ms => SimMs, wall_ms => round(WallMs),
-      realtime_factor => SimMs / max(WallMs, 0.001), frames => Frames,
-      pair_contacts => maps:get(pair_contacts, Stats), fixture_contacts => maps:get(fixture_contacts, Stats),
-      body_substeps => maps:get(body_substeps, Stats)}.
+    Stats#{scene => Name, engine => Engine, bodies => length(Spheres), substep_ms => Dt,
+           stride_ms => Stride, sim_ms => SimMs, wall_ms => round(WallMs),
+           realtime_factor => SimMs / max(WallMs, 0.001)}.
 
 check_options(Opts) when is_map(Opts) ->
     Bad = [K || K <- maps:keys(Opts), not lists:member(K, ?OPTION_KEYS)],
@@ -102,7 +125,9 @@ check_options(Opts) ->
     {error, lists:flatten(io_lib:format("options must be a map, got ~p", [Opts]))}.
 
 check_values([]) -> ok;
-check_values([{engine, reference} | Rest]) -> check_values(Rest);
+check_values([{engine, E} | Rest]) when E =:= reference; E =:= timewarp -> check_values(Rest);
+check_values([{K, V} | Rest]) when (K =:= buckets orelse K =:= schedulers orelse K =:= watchdog_ms),
+                                   is_integer(V), V > 0, V =< 1 bsl 20 -> check_values(Rest);
 check_values([{K, V} | Rest]) when (K =:= until orelse K =:= substep orelse K =:= stride orelse
                                     K =:= frame_ms), is_integer(V), V > 0 -> check_values(Rest);
 check_values([{frames, F} | Rest]) when is_list(F); is_binary(F) -> check_values(Rest);

@@ -1,5 +1,9 @@
-%% Top supervisor. Simulations are added under it by the Time Warp engine;
-%% the reference engine runs in the caller's process and needs no children.
+%% Top supervisor of the rigidwarp application.
+%%
+%%   rigidwarp_sup (one_for_one)
+%%   `-- rw_sims_sup: one rw_sim_sup per running Time Warp simulation
+%%
+%% The reference engine runs in the caller's process and needs no children.
 -module(rigidwarp_sup).
 -behaviour(supervisor).
 -export([start_link/0, init/1]).
@@ -9,4 +13,6 @@ start_link() -> supervisor:start_link({local, ?MODULE}, ?MODULE, []).
 
 -spec init([]) -> {ok, {supervisor:sup_flags(), [supervisor:child_spec()]}}.
 init([]) ->
-    {ok, {#{strategy => one_for_one, intensity => 5, period => 10}, []}}.
+    {ok, {#{strategy => one_for_one, intensity => 5, period => 10},
+          [#{id => rw_sims_sup, start => {rw_sims_sup, start_link, []}, type => supervisor,
+             shutdown => infinity}]}}.

@@ -220,7 +220,7 @@ static_shape(<<"box">>, B, P) ->
     {box, vec(B, <<"position">>, P), E, Kind}.
 
 unique_ids(Parsed) ->
-    lists:foldl(fun(Body, Seen) ->
+    _ = lists:foldl(fun(Body, Seen) ->
                         {Id, P} = id_and_path(Body),
                         case maps:find(Id, Seen) of
                             {ok, First} ->
@@ -491,6 +491,7 @@ unit_vec(M, K, P, Default) ->
         V -> rw_vec:norm(V)
     end.
 
+-spec invalid(path(), string(), [term()]) -> no_return().
 invalid(Path, Fmt, Args) -> throw({invalid, Path, fmt(Fmt, Args)}).
 
 fmt(Fmt, Args) -> lists:flatten(io_lib:format(Fmt, Args)).

@@ -1,0 +1,29 @@
+# rigidwarp — see README.md. `make test` is the project's test command.
+REBAR ?= rebar3
+ESCRIPT = _build/default/bin/rigidwarp
+
+.PHONY: all deps build test run shell clean
+
+all: build
+
+# Debian packages the build and the tests need (no hex.pm here).
+deps:
+	@scripts/install-deps
+
+build: deps
+	$(REBAR) escriptize
+
+# eunit + PropEr + common_test + xref + dialyzer, then one closing count line.
+test: build
+	@scripts/run-tests
+
+# The first thing to try: a scene end to end with a progress line and a summary.
+run: build
+	$(ESCRIPT) run scenarios/cylinders_200.json --until 2000 --engine reference
+
+shell: build
+	$(REBAR) shell
+
+clean:
+	$(REBAR) clean -a
+	rm -rf _build/test/logs

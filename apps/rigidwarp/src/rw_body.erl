@@ -1,0 +1,351 @@
+%% One dynamic body of a Time Warp simulation (the paper's entity): a
+%% gen_statem with its own Local Virtual Time and the phases
+%%   step     integrate ahead to LVT_ub, write the states to the TVHT, stop at
+%%            the first substep with contacts (Alg. 2, 5, 6);
+%%   resolve  wait until the events sent for those contacts are acknowledged
+%%            (Alg. 3);
+%%   rollback wait until the antievents of a rollback are acknowledged
+%%            (Alg. 4, 7).
+%%
+%% Timeline: hist holds the pre-response state written to the TVHT at every
+%% substep from GVT to LVT; contacts holds, per substep, the contacts with
+%% other bodies known at that substep (own detections and received events),
+%% each as this body's half of the pair's effect. The post-response velocity
+%% at a substep is always recomputed from the pre-response state and the
+%% sorted set of all its contacts (rw_dynamics), never updated in place.
+%%
+%% Every event and antievent is acknowledged as soon as it has been applied
+%% (after any rollback it causes has deleted its states), so no body ever
+%% waits on a body that waits on it: the only blocking waits are for acks,
+%% which always come, and for bucket locks, which are taken in bucket order
+%% (Lemma 1) and never held while waiting for a body.
+-module(rw_body).
+-behaviour(gen_statem).
+-include("rigidwarp.hrl").
+-export([start_link/3, describe/2]).
+-export([callback_mode/0, init/1, step/3, resolve/3, rollback/3]).
+-export_type([data/0, cid/0]).
+
+%% Contact id: {LVT, lower idx, higher idx, unique}.
+-type cid() :: {non_neg_integer(), non_neg_integer(), non_neg_integer(), reference()}.
+
+-record(d, {
+    sim :: #sim{},
+    sphere :: #sphere{},
+    idx :: non_neg_integer(),
+    model :: #model{},
+    dt :: pos_integer(),
+    frame_ms :: pos_integer(),
+    end_ms :: non_neg_integer(),
+    stride :: pos_integer(),
+    lvt = 0 :: non_neg_integer(),
+    gvt = 0 :: non_neg_integer(),
+    hist = #{} :: #{non_neg_integer() => #st{}},
+    contacts = #{} :: #{non_neg_integer() => #{cid() => {non_neg_integer(), rw_response:effect()}}},
+    pend_ev = #{} :: #{cid() => true},
+    pend_anti = #{} :: #{cid() => true},
+    ghosts = #{} :: #{cid() => true},
+    committed = [] :: [non_neg_integer()],     % frame times committed, newest first
+    delay = 0 :: non_neg_integer()              % test hook: max pause (ms) before TVHT work
+}).
+-opaque data() :: #d{}.
+
+-define(ST_EVENTS, 1).
+-define(ST_ANTIEVENTS, 2).
+-define(ST_PRIMARY, 3).
+-define(ST_SECONDARY, 4).
+-define(ST_ROLLED_BACK, 5).
+-define(ST_COMPUTED, 6).
+
+-spec start_link(#sim{}, #sphere{}, #st{}) -> gen_statem:start_ret().
+start_link(Sim, Sphere, St0) -> gen_statem:start_link(?MODULE, {Sim, Sphere, St0}, []).
+
+%% One line for the watchdog: phase, LVT and whom this body waits on.
+-spec describe(atom(), data()) -> iolist().
+describe(Phase, #d{idx = Idx, sphere = #sphere{id = Id}, lvt = Lvt, gvt = Gvt, pend_ev = PE, pend_anti = PA}) ->
+    Whom = fun(M) -> [other(Idx, Cid) || Cid <- maps:keys(M)] end,
+    io_lib:format("body ~ts (idx ~b): ~p at LVT ~b (GVT ~b); awaiting event acks from ~w, "
+                  "antievent acks from ~w~n", [Id, Idx, Phase, Lvt, Gvt, Whom(PE), Whom(PA)]).
+
+other(Idx, {_, Idx, B, _}) -> B;
+other(_Idx, {_, A, _, _}) -> A.
+
+-spec callback_mode() -> gen_statem:callback_mode_result().
+callback_mode() -> state_functions.
+
+-spec init({#sim{}, #sphere{}, #st{}}) -> gen_statem:init_result(step).
+init({#sim{scene = #scene{model = M, substep_ms = Dt, frame_ms = F, stride_ms = Stride}, end_ms = End} = Sim,
+      #sphere{idx = Idx} = Sphere, St0}) ->
+    D = #d{sim = Sim, sphere = Sphere, idx = Idx, model = M, dt = Dt, frame_ms = F,
+           end_ms = End, stride = Stride},
+    {ok, step, D#d{hist = #{0 => St0}}}.
+
+%%% Phases
+
+-spec step(gen_statem:event_type(), term(), #d{}) -> gen_statem:event_handler_result(atom()).
+step(info, go, #d{hist = #{0 := St0}} = D) ->
+    %% the initial state is written like any other, at LVT 0
+    settle(write_states([{0, St0}], 0, D#d{lvt = 0}));
+step(timeout, step, #d{lvt = Lvt, gvt = Gvt, stride = Stride, end_ms = End} = D) ->
+    Last = min(Gvt + Stride, End),
+    case Lvt < Last of
+        true -> settle(advance(Lvt, Last, D));
+        false -> {keep_state, commit_end(D)}
+    end;
+step(Type, Msg, D) ->
+    common(Type, Msg, D).
+
+-spec resolve(gen_statem:event_type(), term(), #d{}) -> gen_statem:event_handler_result(atom()).
+resolve(Type, Msg, D) -> common(Type, Msg, D).
+
+-spec rollback(gen_statem:event_type(), term(), #d{}) -> gen_statem:event_handler_result(atom()).
+rollback(Type, Msg, D) -> common(Type, Msg, D).
+
+%% Messages every phase handles; the phase that follows is derived from
+%% what is still awaited.
+common(info, {event, Cid, T, FromIdx, From, Effect}, D) ->
+    settle(on_event(Cid, T, FromIdx, From, Effect, D));
+common(info, {antievent, Cid, T, From}, D) ->
+    settle(on_antievent(Cid, T, From, D));
+common(info, {ack, event, Cid}, #d{pend_ev = P} = D) ->
+    settle(D#d{pend_ev = maps:remove(Cid, P)});
+common(info, {ack, anti, Cid}, #d{pend_anti = P} = D) ->
+    settle(D#d{pend_anti = maps:remove(Cid, P)});
+common(info, {gvt, G}, D) ->
+    settle(on_gvt(G, D));
+common(info, {delay, Seed, MaxMs}, D) ->
+    _ = rand:seed(exsss, Seed),
+    settle(D#d{delay = MaxMs});
+common(timeout, step, D) ->
+    settle(D);
+common(Type, Msg, D) ->
+    logger:warning("rw_body ~p: unexpected ~p ~p", [D#d.idx, Type, Msg]),
+    keep_state_and_data.
+
+settle(#d{pend_anti = PA} = D) when map_size(PA) > 0 -> {next_state, rollback, D};
+settle(#d{pend_ev = PE} = D) when map_size(PE) > 0 -> {next_state, resolve, D};
+settle(D) -> {next_state, step, D, [{timeout, 0, step}]}.
+
+%%% Step: integrate from LVT to Last assuming no new contacts, write
+
+advance(Lvt, Last, #d{hist = Hist} = D) ->
+    {Passed, States} = chain(Lvt, maps:get(Lvt, Hist), Last, D, [], []),
+    counters:add(D#d.sim#sim.stats, ?ST_COMPUTED, length(States)),
+    D1 = write_states(States, Last, D),
+    %% commit every frame time this step moved past
+    #d{lvt = NewLvt} = D1,
+    lists:foldl(fun({T, St, Post}, Acc) when T < NewLvt -> commit(T, St, Post, Acc);
+                   (_, Acc) -> Acc
+                end, D1, Passed).
+
+%% Post-response at T and the states after it, up to Last.
+chain(T, _St, Last, _D, Passed, States) when T >= Last ->
+    {lists:reverse(Passed), lists:reverse(States)};
+chain(T, St, Last, #d{model = M, dt = Dt} = D, Passed, States) ->
+    Post = {V, W, U} = rw_dynamics:respond(St, effects(T, St, D)),
+    Next = rw_integrate:advance(M, St, V, W, U),
+    chain(T + Dt, Next, Last, D, [{T, St, Post} | Passed], [{T + Dt, Next} | States]).
+
+%% Effects of every known contact at T, in canonical order of partner.
+effects(T, #st{} = St, #d{model = M, sphere = S, contacts = Contacts, sim = Sim} = D) ->
+    Bodies = [{{PIdx, 0}, E} || {PIdx, E} <- maps:values(maps:get(T, Contacts, #{}))],
+    Fixed = [{{FIdx, Feature}, rw_response:fixture(M, S, St, C)}
+             || #fixture{idx = FIdx, shape = Shape} <- Sim#sim.scene#scene.fixtures,
+                {Feature, C} <- fixture_contacts(St, Shape, D)],
+    [E || {_, E} <- lists:keysort(1, Bodies ++ Fixed)].
+
+fixture_contacts(#st{p = P}, Shape, #d{model = #model{ccd = false}, sphere = #sphere{radius = R}}) ->
+    rw_narrow:sphere_fixture(P, R, Shape);
+fixture_contacts(#st{p = P} = St, Shape, #d{model = #model{ccd = true} = M, sphere = #sphere{radius = R}}) ->
+    rw_narrow:swept_sphere_fixture(P, rw_integrate:free_displacement(M, St), R, Shape).
+
+%% Write States ([{T, St}], ascending) to the TVHT under lock; stop at the
+%% first substep with contacts, send the events for them. LVT becomes that
+%% substep, or Last.
+write_states(States, Last, #d{idx = Idx, sphere = S, model = M, sim = Sim, hist = Hist} = D) ->
+    Writes = [{T, {Idx, self(), S, St, disp(M, St)}} || {T, St} <- States],
+    Plan = plan([{T, Entry, cells(Entry, Sim)} || {T, Entry} <- Writes], Sim),
+    maybe_delay(D),
+    Results = [{B, rw_bucket:lock_probe(Pid, self(), Cells, Ws)} || {B, Pid, Cells, Ws} <- Plan],
+    Found = [R || {_, R} <- Results, R =/= none],
+    {UpTo, Hits} = case Found of
+                       [] -> {Last, []};
+                       _ ->
+                           TStar = lists:min([T || {T, _} <- Found]),
+                           {TStar, lists:ukeysort(1, [{element(1, E), {E, C}} || {T, Hs} <- Found, T =:= TStar,
+                                                                                  {E, C} <- Hs])}
+                   end,
+    Ids = maps:from_list([{OIdx, {UpTo, min(Idx, OIdx), max(Idx, OIdx), make_ref()}} || {OIdx, _} <- Hits]),
+    [rw_bucket:commit_unlock(Pid, self(), UpTo, Ids) || {_, Pid, _, _} <- Plan],
+    Hist1 = lists:foldl(fun({T, St}, H) when T =< UpTo -> H#{T => St};
+                           (_, H) -> H
+                        end, Hist, States),
+    D1 = D#d{hist = Hist1, lvt = UpTo},
+    send_events(UpTo, Hits, Ids, D1).
+
+disp(#model{ccd = true} = M, St) -> rw_integrate:free_displacement(M, St);
+disp(_, _) -> undefined.
+
+cells({_, _, #sphere{radius = R}, #st{p = P}, undefined}, #sim{scene = #scene{cell_size = C}}) ->
+    rw_hash:cells(rw_shape:sphere_aabb(P, R), C);
+cells({_, _, #sphere{radius = R}, #st{p = P}, Disp}, #sim{scene = #scene{cell_size = C}}) ->
+    rw_hash:cells(rw_shape:swept_aabb(P, Disp, R), C).
+
+%% Group per-state cells by bucket, in bucket order (the lock order):
+%% [{BucketIndex, Pid, AllCellsInBucket, [{T, Payload, CellsInBucket}]}].
+plan(Items, #sim{buckets = Buckets}) ->
+    NB = tuple_size(Buckets),
+    ByBucket = lists:foldl(
+                 fun({T, Payload, Cells}, Acc) ->
+                         Split = lists:foldl(fun(C, A) -> maps:update_with(rw_hash:bucket(C, NB),
+                                                                            fun(L) -> [C | L] end, [C], A)
+                                             end, #{}, Cells),
+                         maps:fold(fun(B, Cs, A) ->
+                                           maps:update_with(B, fun(L) -> [{T, Payload, Cs} | L] end,
+                                                            [{T, Payload, Cs}], A)
+                                   end, Acc, Split)
+                 end, #{}, Items),
+    [{B, element(B + 1, Buckets), lists:usort(lists:append([Cs || {_, _, Cs} <- Ws])), lists:reverse(Ws)}
+     || {B, Ws} <- lists:sort(maps:to_list(ByBucket))].
+
+send_events(_T, [], _Ids, D) -> D;
+send_events(T, Hits, Ids, #d{idx = Idx, sphere = S, model = M, hist = Hist, contacts = Contacts} = D) ->
+    St = maps:get(T, Hist),
+    {Mine, Pend} = lists:foldl(
+                     fun({OIdx, {{_, OPid, OS, OSt, _}, Contact}}, {Acc, P}) ->
+                             {Own, Theirs} = case Idx < OIdx of
+                                                 true -> rw_response:pair(M, S, St, OS, OSt, Contact);
+                                                 false -> swap(rw_response:pair(M, OS, OSt, S, St, Contact))
+                                             end,
+                             Cid = maps:get(OIdx, Ids),
+                             OPid ! {event, Cid, T, Idx, self(), Theirs},
+                             {Acc#{Cid => {OIdx, Own}}, P#{Cid => true}}
+                     end, {maps:get(T, Contacts, #{}), D#d.pend_ev}, Hits),
+    counters:add(D#d.sim#sim.stats, ?ST_EVENTS, length(Hits)),
+    D#d{contacts = Contacts#{T => Mine}, pend_ev = Pend}.
+
+swap({A, B}) -> {B, A}.
+
+%%% Events and antievents
+
+on_event(Cid, T, FromIdx, From, Effect, #d{ghosts = Ghosts, lvt = Lvt, contacts = Contacts} = D) ->
+    case maps:take(Cid, Ghosts) of
+        {true, Ghosts1} ->
+            %% its contact died with a state we deleted; our antievent answers it
+            D#d{ghosts = Ghosts1};
+        error when T > Lvt ->
+            erlang:error({event_from_the_future, T, Lvt, Cid});
+        error ->
+            D1 = D#d{contacts = Contacts#{T => (maps:get(T, Contacts, #{}))#{Cid => {FromIdx, Effect}}}},
+            D2 = case T < Lvt of
+                     true -> counters:add(D#d.sim#sim.stats, ?ST_PRIMARY, 1),
+                             roll_back(T, D1);
+                     false -> withdraw(T, D1)
+                 end,
+            From ! {ack, event, Cid},
+            D2
+    end.
+
+on_antievent(Cid, T, From, #d{contacts = Contacts, lvt = Lvt} = D) ->
+    AtT = maps:get(T, Contacts, #{}),
+    D2 = case maps:is_key(Cid, AtT) of
+             true ->
+                 D1 = D#d{contacts = Contacts#{T => maps:remove(Cid, AtT)},
+                          pend_ev = maps:remove(Cid, D#d.pend_ev)},
+                 case T < Lvt of
+                     true -> counters:add(D#d.sim#sim.stats, ?ST_SECONDARY, 1),
+                             roll_back(T, D1);
+                     false -> withdraw(T, D1)
+                 end;
+             false ->
+                 %% already gone with a state we deleted ourselves
+                 D
+         end,
+    From ! {ack, anti, Cid},
+    D2.
+
+%% Go back to R: delete the states after R from the TVHT, send antievents
+%% for the contacts they had, forget commits from R on.
+roll_back(R, #d{lvt = Lvt} = D) when R >= Lvt -> withdraw(R, D);
+roll_back(R, #d{idx = Idx, hist = Hist, contacts = Contacts, sim = Sim} = D) ->
+    Gone = [{T, maps:get(T, Hist)} || T <- lists:sort(maps:keys(Hist)), T > R],
+    Plan = plan([{T, Idx, cells(Entry, Sim)} || {T, St} <- Gone,
+                                                 Entry <- [{Idx, self(), D#d.sphere, St, disp(D#d.model, St)}]],
+                Sim),
+    maybe_delay(D),
+    Lost = lists:append([rw_bucket:lock_delete(Pid, self(), Cells, Ds) || {_, Pid, Cells, Ds} <- Plan]),
+    [rw_bucket:unlock(Pid, self()) || {_, Pid, _, _} <- Plan],
+    counters:add(Sim#sim.stats, ?ST_ROLLED_BACK, length(Gone)),
+    Me = self(),
+    {PendAnti, Ghosts} =
+        lists:foldl(
+          fun({{T, _, _, _} = Cid, Detector, Other}, {PA, G}) ->
+                  case maps:is_key(Cid, PA) of
+                      true -> {PA, G};
+                      false ->
+                          Partner = case Detector of Me -> Other; _ -> Detector end,
+                          Partner ! {antievent, Cid, T, Me},
+                          Known = maps:is_key(Cid, maps:get(T, Contacts, #{})),
+                          G1 = case Detector =/= Me andalso not Known of
+                                   true -> G#{Cid => true};
+                                   false -> G
+                               end,
+                          {PA#{Cid => true}, G1}
+                  end
+          end, {D#d.pend_anti, D#d.ghosts}, Lost),
+    counters:add(Sim#sim.stats, ?ST_ANTIEVENTS, map_size(PendAnti) - map_size(D#d.pend_anti)),
+    Keep = fun(T, _) -> T =< R end,
+    withdraw(R, D#d{lvt = R, hist = maps:filter(Keep, Hist), contacts = maps:filter(Keep, Contacts),
+                    pend_ev = #{}, pend_anti = PendAnti, ghosts = Ghosts}).
+
+%%% Commits (the GVT counter)
+
+is_frame(T, #d{frame_ms = F, end_ms = End}) -> T rem F =:= 0 orelse T =:= End.
+
+commit(T, #st{p = P, q = Q}, {V, W, _U}, #d{sim = Sim, idx = Idx, sphere = #sphere{id = Id}} = D) ->
+    case is_frame(T, D) of
+        true ->
+            ets:insert(Sim#sim.records, {{T, Idx}, {Id, P, V, Q, W}}),
+            case ets:update_counter(Sim#sim.counts, T, 1, {T, 0}) of
+                N when N =:= Sim#sim.n -> Sim#sim.gvt ! {complete, T};
+                _ -> ok
+            end,
+            D#d{committed = [T | D#d.committed]};
+        false ->
+            D
+    end.
+
+%% At the end time there is no next state: commit End once nothing is
+%% awaited at it.
+commit_end(#d{lvt = End, end_ms = End, committed = Committed, hist = Hist} = D) ->
+    case Committed of
+        [End | _] -> D;
+        _ ->
+            St = maps:get(End, Hist),
+            commit(End, St, rw_dynamics:respond(St, effects(End, St, D)), D)
+    end;
+commit_end(D) -> D.
+
+%% Take back every commit at or after T.
+withdraw(T, #d{committed = Committed, sim = Sim, idx = Idx} = D) ->
+    {Gone, Kept} = lists:partition(fun(C) -> C >= T end, Committed),
+    [begin
+         ets:update_counter(Sim#sim.counts, C, -1),
+         ets:delete(Sim#sim.records, {C, Idx})
+     end || C <- Gone],
+    D#d{committed = Kept}.
+
+on_gvt(G, #d{hist = Hist, contacts = Contacts, committed = Committed} = D) ->
+    Keep = fun(T, _) -> T >= G end,
+    D#d{gvt = G, hist = maps:filter(Keep, Hist), contacts = maps:filter(Keep, Contacts),
+        committed = [T || T <- Committed, T > G]}.
+
+%% Test hook: a random pause before TVHT work shuffles the order in which
+%% bodies interleave (liveness and equality must not depend on it).
+maybe_delay(#d{delay = 0}) -> ok;
+maybe_delay(#d{delay = MaxMs}) ->
+    case rand:uniform(MaxMs + 2) - 2 of
+        -1 -> erlang:yield();
+        0 -> ok;
+        Ms -> timer:sleep(Ms)
+    end.

@@ -1,0 +1,138 @@
+%% The GVT counter of one simulation. Bodies commit their state at every
+%% frame time they move past (rw_body: an ETS record plus a shared counter)
+%% and withdraw it when they roll back; the body whose commit completes a
+%% frame time tells this process. Frames complete in time order: each is
+%% written to the ETS ring, GVT advances to it, and bodies and buckets drop
+%% their history before it (which raises every LVT_ub to GVT + stride).
+%%
+%% A watchdog stops the run with a diagnostic naming every body's phase,
+%% LVT and awaited acknowledgements if GVT does not advance for a while.
+-module(rw_gvt).
+-behaviour(gen_server).
+-include("rigidwarp.hrl").
+-export([start_link/0, go/4, subscribe/2, latest/1, frame_at/2, gvt/1]).
+-export([init/1, handle_call/3, handle_cast/2, handle_info/2]).
+
+-record(s, {
+    sim :: #sim{} | undefined,
+    bodies = [] :: [pid()],
+    owner :: pid() | undefined,
+    subscribers = [] :: [pid()],
+    gvt = -1 :: integer(),                   % last frame time written
+    complete = #{} :: #{non_neg_integer() => true},
+    last_advance :: integer() | undefined,
+    watchdog_ms = 10000 :: pos_integer(),
+    ring_size = 1024 :: pos_integer(),
+    frames = 0 :: non_neg_integer()
+}).
+
+-spec start_link() -> {ok, pid()}.
+start_link() -> gen_server:start_link(?MODULE, [], []).
+
+%% Start counting: Opts may set watchdog_ms and ring_size.
+-spec go(pid(), #sim{}, [pid()], map()) -> ok.
+go(Gvt, Sim, Bodies, Opts) -> gen_server:call(Gvt, {go, Sim, Bodies, Opts}).
+
+%% Send {rw_frame, Gvt, Frame} to Pid for every frame from now on.
+-spec subscribe(pid(), pid()) -> ok.
+subscribe(Gvt, Pid) -> gen_server:call(Gvt, {subscribe, Pid}).
+
+-spec gvt(pid()) -> integer().
+gvt(Gvt) -> gen_server:call(Gvt, gvt).
+
+%% Frames are read from the ring directly, without the GVT process.
+-spec latest(ets:tid()) -> rw_reference:frame() | none.
+latest(Ring) ->
+    case ets:lookup(Ring, latest) of
+        [{latest, T}] -> frame_at(Ring, T);
+        [] -> none
+    end.
+
+-spec frame_at(ets:tid(), non_neg_integer()) -> rw_reference:frame() | none.
+frame_at(Ring, T) ->
+    case ets:lookup(Ring, {t, T}) of
+        [{_, Frame}] -> Frame;
+        [] -> none
+    end.
+
+-spec init([]) -> {ok, #s{}}.
+init([]) -> {ok, #s{}}.
+
+-spec handle_call(term(), gen_server:from(), #s{}) -> {reply, term(), #s{}}.
+handle_call({go, Sim, Bodies, Opts}, _From, S) ->
+    Watchdog = maps:get(watchdog_ms, Opts, 10000),
+    erlang:send_after(Watchdog div 4 + 1, self(), watchdog),
+    {reply, ok, S#s{sim = Sim, bodies = Bodies, owner = maps:get(owner, Opts, undefined),
+                    watchdog_ms = Watchdog, ring_size = maps:get(ring_size, Opts, 1024),
+                    last_advance = now_ms()}};
+handle_call({subscribe, Pid}, _From, #s{subscribers = Subs} = S) ->
+    {reply, ok, S#s{subscribers = [Pid | Subs]}};
+handle_call(gvt, _From, S) ->
+    {reply, S#s.gvt, S}.
+
+-spec handle_cast(term(), #s{}) -> {noreply, #s{}}.
+handle_cast(_Msg, S) -> {noreply, S}.
+
+-spec handle_info(term(), #s{}) -> {noreply, #s{}} | {stop, term(), #s{}}.
+handle_info({complete, T}, #s{complete = C} = S) ->
+    {noreply, advance(S#s{complete = C#{T => true}})};
+handle_info(watchdog, #s{last_advance = Last, watchdog_ms = W} = S) ->
+    case now_ms() - Last > W of
+        true ->
+            Report = diagnose(S),
+            logger:error("rigidwarp: GVT stuck at ~b ms for ~b ms~n~ts", [S#s.gvt, W, Report]),
+            notify(S#s.owner, {rw_stalled, self(), S#s.gvt, Report}),
+            {noreply, S#s{last_advance = now_ms()}};
+        false ->
+            erlang:send_after(W div 4 + 1, self(), watchdog),
+            {noreply, S}
+    end;
+handle_info(Msg, S) ->
+    logger:warning("rw_gvt: unexpected message ~p", [Msg]),
+    {noreply, S}.
+
+next_frame(#s{gvt = -1}) -> 0;
+next_frame(#s{gvt = G, sim = #sim{scene = #scene{frame_ms = F}, end_ms = End}}) -> min(G + F, End).
+
+advance(#s{complete = C, sim = #sim{end_ms = End} = Sim} = S) ->
+    Next = next_frame(S),
+    case maps:take(Next, C) of
+        {true, C1} ->
+            Frame = {frame, Next, ets:select(Sim#sim.records, [{{{Next, '_'}, '$1'}, [], ['$1']}])},
+            write_ring(Next, Frame, S),
+            ets:select_delete(Sim#sim.records, [{{{Next, '_'}, '_'}, [], [true]}]),
+            ets:delete(Sim#sim.counts, Next),
+            [B ! {gvt, Next} || B <- S#s.bodies],
+            [rw_bucket:gvt(B, Next) || B <- tuple_to_list(Sim#sim.buckets)],
+            [P ! {rw_frame, self(), Frame} || P <- S#s.subscribers],
+            S1 = S#s{gvt = Next, complete = C1, last_advance = now_ms(), frames = S#s.frames + 1},
+            case Next of
+                End -> notify(S#s.owner, {rw_done, self(), End}), S1;
+                _ -> advance(S1)
+            end;
+        error ->
+            S
+    end.
+
+write_ring(T, Frame, #s{sim = Sim, ring_size = Size, frames = K}) ->
+    Ring = Sim#sim.ring,
+    case K >= Size of
+        true ->
+            [{_, Old}] = ets:lookup(Ring, {slot, K rem Size}),
+            ets:delete(Ring, {t, Old});
+        false -> ok
+    end,
+    ets:insert(Ring, [{{t, T}, Frame}, {{slot, K rem Size}, T}, {latest, T}]).
+
+notify(undefined, _) -> ok;
+notify(Pid, Msg) -> Pid ! Msg.
+
+%% Who waits on whom: each body's phase, LVT and what it awaits.
+diagnose(#s{bodies = Bodies}) ->
+    Lines = [case catch sys:get_state(B, 500) of
+                 {Phase, D} when is_atom(Phase) -> rw_body:describe(Phase, D);
+                 _ -> io_lib:format("~p: not answering (blocked in a bucket call?)~n", [B])
+             end || B <- Bodies],
+    lists:flatten(Lines).
+
+now_ms() -> erlang:monotonic_time(millisecond).

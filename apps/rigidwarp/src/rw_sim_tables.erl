@@ -1,0 +1,27 @@
+%% Owns the ETS tables of one simulation and does nothing else, so that the
+%% tables outlive a crash of the GVT process or of any body.
+-module(rw_sim_tables).
+-behaviour(gen_server).
+-export([start_link/0, tables/1]).
+-export([init/1, handle_call/3, handle_cast/2]).
+
+-type tables() :: #{records := ets:tid(), counts := ets:tid(), ring := ets:tid()}.
+-export_type([tables/0]).
+
+-spec start_link() -> {ok, pid()}.
+start_link() -> gen_server:start_link(?MODULE, [], []).
+
+-spec tables(pid()) -> tables().
+tables(Pid) -> gen_server:call(Pid, tables).
+
+-spec init([]) -> {ok, tables()}.
+init([]) ->
+    {ok, #{records => ets:new(rw_records, [ordered_set, public, {write_concurrency, true}]),
+           counts => ets:new(rw_counts, [set, public, {write_concurrency, true}]),
+           ring => ets:new(rw_frames, [set, public, {read_concurrency, true}])}}.
+
+-spec handle_call(tables, gen_server:from(), tables()) -> {reply, tables(), tables()}.
+handle_call(tables, _From, Tabs) -> {reply, Tabs, Tabs}.
+
+-spec handle_cast(term(), tables()) -> {noreply, tables()}.
+handle_cast(_Msg, Tabs) -> {noreply, Tabs}.

@@ -1,0 +1,100 @@
+%% Runs a scene on the Time Warp engine: starts one simulation tree under
+%% rw_sims_sup, starts a body per sphere, and collects frames and counters.
+-module(rw_timewarp).
+-include("rigidwarp.hrl").
+-export([start/2, run/2, stop/1, stats/1, default_buckets/0]).
+-export_type([handle/0, options/0]).
+
+-type handle() :: #{sup := pid(), gvt := pid(), ring := ets:tid(), sim := #sim{}}.
+-type options() :: #{buckets => pos_integer(), owner => pid(), subscribe => boolean(),
+                     watchdog_ms => pos_integer(), ring_size => pos_integer(),
+                     delay => {Seed :: integer(), MaxMs :: non_neg_integer()},
+                     on_frame => fun((rw_reference:frame()) -> any())}.
+
+-define(STAT_NAMES, [events, antievents, primary_rollbacks, secondary_rollbacks,
+                     rolled_back_substeps, computed_substeps]).
+
+-spec default_buckets() -> pos_integer().
+default_buckets() -> 64.
+
+%% Start a simulation; it runs on its own until the scene's end.
+-spec start(#scene{}, options()) -> {ok, handle()} | {error, term()}.
+start(#scene{spheres = Spheres, initial = Initial, duration_ms = End} = Scene, Opts) ->
+    {ok, _} = application:ensure_all_started(rigidwarp),
+    NBuckets = case Scene#scene.buckets of
+                   undefined -> maps:get(buckets, Opts, default_buckets());
+                   B -> maps:get(buckets, Opts, B)
+               end,
+    case supervisor:start_child(rw_sims_sup, [Scene, NBuckets]) of
+        {ok, Sup} ->
+            #{tables := TablesPid, gvt := Gvt, buckets := Buckets, bodies := BodySup} = rw_sim_sup:children(Sup),
+            #{records := Records, counts := Counts, ring := Ring} = rw_sim_tables:tables(TablesPid),
+            Sim = #sim{scene = Scene, n = length(Spheres), end_ms = End, buckets = Buckets, gvt = Gvt,
+                       records = Records, counts = Counts, ring = Ring,
+                       stats = counters:new(length(?STAT_NAMES), [write_concurrency])},
+            Bodies = [begin
+                          {ok, Pid} = supervisor:start_child(BodySup, [Sim, Sphere, St]),
+                          Pid
+                      end || {Sphere, St} <- lists:zip(Spheres, Initial)],
+            case maps:find(delay, Opts) of
+                {ok, {Seed, MaxMs}} -> [P ! {delay, Seed + I, MaxMs} || {I, P} <- lists:zip(lists:seq(1, length(Bodies)), Bodies)];
+                error -> ok
+            end,
+            maps:get(subscribe, Opts, false) andalso rw_gvt:subscribe(Gvt, maps:get(owner, Opts, self())),
+            ok = rw_gvt:go(Gvt, Sim, Bodies, Opts),
+            [P ! go || P <- Bodies],
+            {ok, #{sup => Sup, gvt => Gvt, ring => Ring, sim => Sim}};
+        {error, _} = Error ->
+            Error
+    end.
+
+-spec stop(handle()) -> ok.
+stop(#{sup := Sup}) ->
+    _ = supervisor:terminate_child(rw_sims_sup, Sup),
+    ok.
+
+-spec stats(handle()) -> #{atom() => number()}.
+stats(#{sim := #sim{stats = Ref, n = N, end_ms = End, scene = #scene{substep_ms = Dt}}}) ->
+    Raw = maps:from_list(lists:zip(?STAT_NAMES, [counters:get(Ref, I) || I <- lists:seq(1, length(?STAT_NAMES))])),
+    Committed = N * (End div Dt),
+    Computed = maps:get(computed_substeps, Raw),
+    Raw#{rollbacks => maps:get(primary_rollbacks, Raw) + maps:get(secondary_rollbacks, Raw),
+         committed_substeps => Committed,
+         efficiency => case Computed of 0 -> 1.0; _ -> Committed / Computed end}.
+
+%% Run to the end, calling on_frame for every committed frame in order.
+-spec run(#scene{}, options()) -> {ok, map()} | {error, term()}.
+run(Scene, Opts) ->
+    OnFrame = maps:get(on_frame, Opts, fun(_) -> ok end),
+    case start(Scene, Opts#{owner => self(), subscribe => true}) of
+        {ok, #{sup := Sup, gvt := Gvt} = H} ->
+            MRef = erlang:monitor(process, Sup),
+            Result = try collect(Gvt, MRef, OnFrame, 0)
+                     after
+                         erlang:demonitor(MRef, [flush])
+                     end,
+            Stats = stats(H),
+            stop(H),
+            flush(Gvt),
+            case Result of
+                {ok, Frames} -> {ok, Stats#{frames => Frames}};
+                Error -> Error
+            end;
+        Error ->
+            Error
+    end.
+
+collect(Gvt, MRef, OnFrame, N) ->
+    receive
+        {rw_frame, Gvt, Frame} -> OnFrame(Frame), collect(Gvt, MRef, OnFrame, N + 1);
+        {rw_done, Gvt, _End} -> {ok, N};
+        {rw_stalled, Gvt, G, Report} -> {error, {stalled, G, Report}};
+        {'DOWN', MRef, process, _, Reason} -> {error, {crashed, Reason}}
+    end.
+
+flush(Gvt) ->
+    receive
+        {rw_frame, Gvt, _} -> flush(Gvt);
+        {rw_stalled, Gvt, _, _} -> flush(Gvt)
+    after 0 -> ok
+    end.
