@@ -4,7 +4,8 @@
 %%   {ok, #{scene => <<"head_on_elastic">>, realtime_factor => ..., ...}}
 -module(rigidwarp).
 -include("rigidwarp.hrl").
--export([run/2, run_scene/2, load/2, help/0]).
+-export([run/2, run_scene/2, load/2, help/0, start/2, stop/1, frames/1, frames/2, subscribe/1,
+         await/2, gvt/1]).
 -export_type([run_options/0, summary/0]).
 
 -type run_options() :: #{engine => timewarp | reference,
@@ -15,6 +16,9 @@
                          frames => file:filename(),
                          on_frame => fun((rw_reference:frame()) -> any())}.
 -type summary() :: #{atom() => term()}.
+%% A running Time Warp simulation (from start/2).
+-opaque sim() :: rw_timewarp:handle().
+-export_type([sim/0]).
 
 -define(OPTION_KEYS, [engine, until, substep, stride, frame_ms, frames, on_frame, buckets, schedulers,
                       watchdog_ms]).
@@ -26,8 +30,62 @@ help() ->
       "  rigidwarp:run(SceneFile, Opts)  run a scene to the end, return a summary map\n"
       "      Opts: engine => reference, until => Ms, substep => Ms, stride => Ms,\n"
       "            frame_ms => Ms, frames => \"out.jsonl\", on_frame => fun(Frame) -> _ end\n"
-      "  rigidwarp:load(SceneFile, Opts) validate a scene, return {ok, Scene} | {error, Message}\n"),
+      "  rigidwarp:load(SceneFile, Opts) validate a scene, return {ok, Scene} | {error, Message}\n"
+      "  rigidwarp:start(SceneFile, Opts) start a Time Warp run in the background: {ok, Sim}\n"
+      "  rigidwarp:frames(Sim)           the latest committed frame\n"
+      "  rigidwarp:frames(Sim, T)        the committed frame at T ms (while in the ring)\n"
+      "  rigidwarp:gvt(Sim)              Global Virtual Time (ms of the latest frame)\n"
+      "  rigidwarp:subscribe(Sim)        receive {rw_frame, _, Frame} for every new frame\n"
+      "  rigidwarp:await(Sim, TimeoutMs) wait for the run to reach its end time\n"
+      "  rigidwarp:stop(Sim)             stop it; no process or table is left behind\n"),
     ok.
+
+%% Start a Time Warp run that goes on in the background. The caller is told
+%% {rw_done, _, EndMs} when it reaches the end; frames stay readable until
+%% stop/1.
+-spec start(file:filename(), run_options()) -> {ok, sim()} | {error, string()}.
+start(File, Opts) ->
+    case maps:get(engine, Opts, timewarp) of
+        timewarp ->
+            case load(File, Opts) of
+                {ok, Scene} ->
+                    case rw_timewarp:start(Scene, (maps:with([buckets, watchdog_ms], Opts))#{owner => self()}) of
+                        {ok, Sim} -> {ok, Sim};
+                        {error, Reason} -> {error, describe_failure(Reason)}
+                    end;
+                {error, _} = Error -> Error
+            end;
+        Other ->
+            {error, lists:flatten(io_lib:format("start/2 runs the timewarp engine only, not ~p", [Other]))}
+    end.
+
+-spec stop(sim()) -> ok.
+stop(Sim) -> rw_timewarp:stop(Sim).
+
+-spec frames(sim()) -> rw_reference:frame() | none.
+frames(Sim) -> frames(Sim, latest).
+
+-spec frames(sim(), latest | non_neg_integer()) -> rw_reference:frame() | none.
+frames(#{ring := Ring}, latest) -> rw_gvt:latest(Ring);
+frames(#{ring := Ring}, T) when is_integer(T), T >= 0 -> rw_gvt:frame_at(Ring, T).
+
+-spec gvt(sim()) -> integer().
+gvt(#{gvt := Gvt}) -> rw_gvt:gvt(Gvt).
+
+-spec subscribe(sim()) -> ok.
+subscribe(#{gvt := Gvt}) -> rw_gvt:subscribe(Gvt, self()).
+
+-spec await(sim(), timeout()) -> ok | timeout.
+await(#{gvt := Gvt, sim := Sim} = H, Timeout) ->
+    End = rw_timewarp:end_ms(Sim),
+    case rw_gvt:gvt(Gvt) >= End of
+        true -> ok;
+        false when Timeout =/= infinity, Timeout =< 0 -> timeout;
+        false ->
+            receive {rw_done, Gvt, _} -> ok
+            after 50 -> await(H, case Timeout of infinity -> infinity; _ -> Timeout - 50 end)
+            end
+    end.
 
 %% Load and validate a scene with the overrides in Opts.
 -spec load(file:filename(), run_options()) -> {ok, #scene{}} | {error, string()}.

@@ -22,7 +22,7 @@
 -module(rw_body).
 -behaviour(gen_statem).
 -include("rigidwarp.hrl").
--export([start_link/3, describe/2]).
+-export([start_link/3, describe/2, lvt/1]).
 -export([callback_mode/0, init/1, step/3, resolve/3, rollback/3]).
 -export_type([data/0, cid/0]).
 
@@ -39,7 +39,7 @@
     end_ms :: non_neg_integer(),
     stride :: pos_integer(),
     lvt = 0 :: non_neg_integer(),
-    gvt = 0 :: non_neg_integer(),
+    gvt = -1 :: integer(),                      % -1 until the first frame
     hist = #{} :: #{non_neg_integer() => #st{}},
     contacts = #{} :: #{non_neg_integer() => #{cid() => {non_neg_integer(), rw_response:effect()}}},
     pend_ev = #{} :: #{cid() => true},
@@ -65,7 +65,10 @@ start_link(Sim, Sphere, St0) -> gen_statem:start_link(?MODULE, {Sim, Sphere, St0
 describe(Phase, #d{idx = Idx, sphere = #sphere{id = Id}, lvt = Lvt, gvt = Gvt, pend_ev = PE, pend_anti = PA}) ->
     Whom = fun(M) -> [other(Idx, Cid) || Cid <- maps:keys(M)] end,
     io_lib:format("body ~ts (idx ~b): ~p at LVT ~b (GVT ~b); awaiting event acks from ~w, "
-                  "antievent acks from ~w~n", [Id, Idx, Phase, Lvt, Gvt, Whom(PE), Whom(PA)]).
+                  "antievent acks from ~w", [Id, Idx, Phase, Lvt, Gvt, Whom(PE), Whom(PA)]).
+
+-spec lvt(data()) -> non_neg_integer().
+lvt(#d{lvt = Lvt}) -> Lvt.
 
 other(Idx, {_, Idx, B, _}) -> B;
 other(_Idx, {_, A, _, _}) -> A.
@@ -87,10 +90,10 @@ step(info, go, #d{hist = #{0 := St0}} = D) ->
     %% the initial state is written like any other, at LVT 0
     settle(write_states([{0, St0}], 0, D#d{lvt = 0}));
 step(timeout, step, #d{lvt = Lvt, gvt = Gvt, stride = Stride, end_ms = End} = D) ->
-    Last = min(Gvt + Stride, End),
+    Last = min(max(Gvt, 0) + Stride, End),
     case Lvt < Last of
         true -> settle(advance(Lvt, Last, D));
-        false -> {keep_state, commit_end(D)}
+        false -> {keep_state, commit_lvt(D)}
     end;
 step(Type, Msg, D) ->
     common(Type, Msg, D).
@@ -300,10 +303,12 @@ roll_back(R, #d{idx = Idx, hist = Hist, contacts = Contacts, sim = Sim} = D) ->
 
 %%% Commits (the GVT counter)
 
-is_frame(T, #d{frame_ms = F, end_ms = End}) -> T rem F =:= 0 orelse T =:= End.
+%% Bodies commit at every frame time and every multiple of the stride, so
+%% that GVT can always advance far enough for LVT_ub to reach the next one.
+is_sync(T, #d{frame_ms = F, stride = S, end_ms = End}) -> T rem F =:= 0 orelse T rem S =:= 0 orelse T =:= End.
 
 commit(T, #st{p = P, q = Q}, {V, W, _U}, #d{sim = Sim, idx = Idx, sphere = #sphere{id = Id}} = D) ->
-    case is_frame(T, D) of
+    case T > D#d.gvt andalso is_sync(T, D) andalso not lists:member(T, D#d.committed) of
         true ->
             ets:insert(Sim#sim.records, {{T, Idx}, {Id, P, V, Q, W}}),
             case ets:update_counter(Sim#sim.counts, T, 1, {T, 0}) of
@@ -315,16 +320,11 @@ commit(T, #st{p = P, q = Q}, {V, W, _U}, #d{sim = Sim, idx = Idx, sphere = #sphe
             D
     end.
 
-%% At the end time there is no next state: commit End once nothing is
-%% awaited at it.
-commit_end(#d{lvt = End, end_ms = End, committed = Committed, hist = Hist} = D) ->
-    case Committed of
-        [End | _] -> D;
-        _ ->
-            St = maps:get(End, Hist),
-            commit(End, St, rw_dynamics:respond(St, effects(End, St, D)), D)
-    end;
-commit_end(D) -> D.
+%% A body waiting at LVT_ub (or at the end time) commits its LVT once
+%% nothing is awaited there; a later event at LVT withdraws it again.
+commit_lvt(#d{lvt = Lvt, hist = Hist} = D) ->
+    St = maps:get(Lvt, Hist),
+    commit(Lvt, St, rw_dynamics:respond(St, effects(Lvt, St, D)), D).
 
 %% Take back every commit at or after T.
 withdraw(T, #d{committed = Committed, sim = Sim, idx = Idx} = D) ->

@@ -76,6 +76,8 @@ handle_cast(_Msg, S) -> {noreply, S}.
 -spec handle_info(term(), #s{}) -> {noreply, #s{}} | {stop, term(), #s{}}.
 handle_info({complete, T}, #s{complete = C} = S) ->
     {noreply, advance(S#s{complete = C#{T => true}})};
+handle_info(watchdog, #s{gvt = End, sim = #sim{end_ms = End}} = S) ->
+    {noreply, S};
 handle_info(watchdog, #s{last_advance = Last, watchdog_ms = W} = S) ->
     case now_ms() - Last > W of
         true ->
@@ -91,21 +93,34 @@ handle_info(Msg, S) ->
     logger:warning("rw_gvt: unexpected message ~p", [Msg]),
     {noreply, S}.
 
-next_frame(#s{gvt = -1}) -> 0;
-next_frame(#s{gvt = G, sim = #sim{scene = #scene{frame_ms = F}, end_ms = End}}) -> min(G + F, End).
+%% GVT advances through the sync points: frame times, multiples of the
+%% stride, and the end time. Frames are written at frame times only.
+next_sync(#s{gvt = -1}) -> 0;
+next_sync(#s{gvt = G, sim = #sim{scene = #scene{frame_ms = F, stride_ms = S}, end_ms = End}}) ->
+    min(min(next_multiple(G, F), next_multiple(G, S)), End).
+
+next_multiple(G, X) -> (G div X + 1) * X.
+
+is_frame(T, #sim{scene = #scene{frame_ms = F}, end_ms = End}) -> T rem F =:= 0 orelse T =:= End.
 
 advance(#s{complete = C, sim = #sim{end_ms = End} = Sim} = S) ->
-    Next = next_frame(S),
+    Next = next_sync(S),
     case maps:take(Next, C) of
         {true, C1} ->
-            Frame = {frame, Next, ets:select(Sim#sim.records, [{{{Next, '_'}, '$1'}, [], ['$1']}])},
-            write_ring(Next, Frame, S),
+            S0 = case is_frame(Next, Sim) of
+                     true ->
+                         Frame = {frame, Next, ets:select(Sim#sim.records, [{{{Next, '_'}, '$1'}, [], ['$1']}])},
+                         write_ring(Next, Frame, S),
+                         [P ! {rw_frame, self(), Frame} || P <- S#s.subscribers],
+                         S#s{frames = S#s.frames + 1};
+                     false ->
+                         S
+                 end,
             ets:select_delete(Sim#sim.records, [{{{Next, '_'}, '_'}, [], [true]}]),
             ets:delete(Sim#sim.counts, Next),
             [B ! {gvt, Next} || B <- S#s.bodies],
             [rw_bucket:gvt(B, Next) || B <- tuple_to_list(Sim#sim.buckets)],
-            [P ! {rw_frame, self(), Frame} || P <- S#s.subscribers],
-            S1 = S#s{gvt = Next, complete = C1, last_advance = now_ms(), frames = S#s.frames + 1},
+            S1 = S0#s{gvt = Next, complete = C1, last_advance = now_ms()},
             case Next of
                 End -> notify(S#s.owner, {rw_done, self(), End}), S1;
                 _ -> advance(S1)
@@ -127,12 +142,22 @@ write_ring(T, Frame, #s{sim = Sim, ring_size = Size, frames = K}) ->
 notify(undefined, _) -> ok;
 notify(Pid, Msg) -> Pid ! Msg.
 
-%% Who waits on whom: each body's phase, LVT and what it awaits.
+%% Who waits on whom: each body's phase, LVT, what it awaits and how many
+%% messages it has not read yet, the bodies holding GVT back first.
 diagnose(#s{bodies = Bodies}) ->
     Lines = [case catch sys:get_state(B, 500) of
-                 {Phase, D} when is_atom(Phase) -> rw_body:describe(Phase, D);
-                 _ -> io_lib:format("~p: not answering (blocked in a bucket call?)~n", [B])
+                 {Phase, D} when is_atom(Phase) ->
+                     {rw_body:lvt(D), [rw_body:describe(Phase, D), queue(B)]};
+                 _ ->
+                     {-1, io_lib:format("~p: not answering (blocked in a bucket call?)~ts", [B, queue(B)])}
              end || B <- Bodies],
-    lists:flatten(Lines).
+    lists:flatten(["bodies by LVT, lowest (holding GVT back) first:\n"
+                   | [[L, $\n] || {_, L} <- lists:keysort(1, Lines)]]).
+
+queue(Pid) ->
+    case erlang:process_info(Pid, message_queue_len) of
+        {message_queue_len, N} -> io_lib:format("; ~b unread messages", [N]);
+        undefined -> "; dead"
+    end.
 
 now_ms() -> erlang:monotonic_time(millisecond).

@@ -2,7 +2,7 @@
 %% rw_sims_sup, starts a body per sphere, and collects frames and counters.
 -module(rw_timewarp).
 -include("rigidwarp.hrl").
--export([start/2, run/2, stop/1, stats/1, default_buckets/0]).
+-export([start/2, run/2, stop/1, stats/1, default_buckets/0, end_ms/1]).
 -export_type([handle/0, options/0]).
 
 -type handle() :: #{sup := pid(), gvt := pid(), ring := ets:tid(), sim := #sim{}}.
@@ -47,6 +47,9 @@ start(#scene{spheres = Spheres, initial = Initial, duration_ms = End} = Scene, O
         {error, _} = Error ->
             Error
     end.
+
+-spec end_ms(#sim{}) -> non_neg_integer().
+end_ms(#sim{end_ms = End}) -> End.
 
 -spec stop(handle()) -> ok.
 stop(#{sup := Sup}) ->

@@ -8,7 +8,9 @@
 
 commands:
   run SCENE.json [options]   run a scene; the summary JSON is the last line on stdout
-      --engine reference     engine to run (reference)
+      --engine ENGINE        timewarp (default, parallel) or reference (sequential oracle)
+      --schedulers N         scheduler threads for the timewarp engine (default: all cores)
+      --buckets N            TVHT bucket processes (default: the scene's buckets, else 64)
       --frames FILE          write committed frames as JSON Lines to FILE
       --until MS             simulate up to MS milliseconds (default: the scene's duration_ms)
       --substep MS           substep in ms (default: the scene's substep_ms)
@@ -24,6 +26,9 @@ exit codes: 0 ok, 1 runtime failure, 2 bad input
 
 -spec main([string()]) -> no_return().
 main(Args) ->
+    logger:remove_handler(default),
+    logger:add_handler(stderr, logger_std_h, #{config => #{type => standard_error},
+                                              formatter => {logger_formatter, #{single_line => true}}}),
     Code = try dispatch(Args)
            catch
                throw:{usage, Msg} ->
@@ -74,7 +79,15 @@ parse([], undefined, _, _) -> throw({usage, "run needs a scene file"});
 parse([], File, Opts, Quiet) -> {File, Opts, Quiet};
 parse(["--quiet" | Rest], F, O, _) -> parse(Rest, F, O, true);
 parse(["--engine", "reference" | Rest], F, O, Q) -> parse(Rest, F, O#{engine => reference}, Q);
-parse(["--engine", E | _], _, _, _) -> throw({usage, "--engine must be reference, got " ++ E});
+parse(["--engine", "timewarp" | Rest], F, O, Q) -> parse(Rest, F, O#{engine => timewarp}, Q);
+parse(["--engine", E | _], _, _, _) -> throw({usage, "--engine must be timewarp or reference, got " ++ E});
+parse(["--schedulers", V | Rest], F, O, Q) ->
+    N = pos_int("--schedulers", V),
+    Max = erlang:system_info(schedulers),
+    N =< Max orelse throw({usage, lists:flatten(io_lib:format("--schedulers must be at most ~b here, got ~s",
+                                                              [Max, V]))}),
+    parse(Rest, F, O#{schedulers => N}, Q);
+parse(["--buckets", V | Rest], F, O, Q) -> parse(Rest, F, O#{buckets => pos_int("--buckets", V)}, Q);
 parse(["--frames", Out | Rest], F, O, Q) -> parse(Rest, F, O#{frames => Out}, Q);
 parse(["--until", V | Rest], F, O, Q) -> parse(Rest, F, O#{until => pos_int("--until", V)}, Q);
 parse(["--substep", V | Rest], F, O, Q) -> parse(Rest, F, O#{substep => pos_int("--substep", V)}, Q);
@@ -109,7 +122,8 @@ run({File, Opts, Quiet}) ->
             io:put_chars([jiffy:encode(Summary), $\n]),
             0;
         {error, Msg2} ->
-            throw({bad_input, Msg2})
+            io:format(standard_error, "rigidwarp: ~ts~n", [Msg2]),
+            1
     end.
 
 %% A plain line on stderr at most once a second.

@@ -1,0 +1,234 @@
+%% The central test: committed frames of the Time Warp engine equal the
+%% sequential reference engine bit for bit, for every scenario and for
+%% random scenes, whatever the schedulers, stride, bucket count or message
+%% timing. Also liveness (random delays, watchdog) and leaks.
+-module(engine_SUITE).
+-include_lib("proper/include/proper.hrl").
+-include_lib("common_test/include/ct.hrl").
+-include_lib("stdlib/include/assert.hrl").
+-export([all/0, groups/0, suite/0, init_per_suite/1, end_per_suite/1]).
+-export([scenarios_equal/1, strides_and_buckets_equal/1, random_scenes_equal/1,
+         random_delays_terminate_and_equal/1, watchdog_names_stuck_body/1,
+         no_leaks_after_100_runs/1, escript_frames_identical/1, frames_api/1]).
+
+suite() -> [{timetrap, {minutes, 15}}].
+
+all() -> [{group, equality}, {group, liveness}, {group, lifecycle}].
+
+groups() ->
+    [{equality, [], [scenarios_equal, strides_and_buckets_equal, random_scenes_equal,
+                     escript_frames_identical]},
+     {liveness, [], [random_delays_terminate_and_equal, watchdog_names_stuck_body]},
+     {lifecycle, [], [no_leaks_after_100_runs, frames_api]}].
+
+init_per_suite(Config) ->
+    {ok, _} = application:ensure_all_started(rigidwarp),
+    Config.
+
+end_per_suite(_Config) -> ok.
+
+%%% Helpers
+
+%% Frames of one run, in order.
+frames(Engine, SceneOrFile, Opts) ->
+    Self = self(),
+    Ref = make_ref(),
+    Sink = fun(F) -> Self ! {Ref, F} end,
+    {ok, Summary} = case SceneOrFile of
+                        File when is_list(File) ->
+                            rigidwarp:run(File, Opts#{engine => Engine, on_frame => Sink});
+                        Scene ->
+                            Run = case Engine of
+                                      reference -> rw_reference:run(Scene, #{on_frame => Sink});
+                                      timewarp -> rw_timewarp:run(Scene, Opts#{on_frame => Sink})
+                                  end,
+                            Run
+                    end,
+    {drain(Ref), Summary}.
+
+drain(Ref) ->
+    receive {Ref, F} -> [F | drain(Ref)] after 0 -> [] end.
+
+with_schedulers(N, Fun) ->
+    Old = erlang:system_flag(schedulers_online, min(N, erlang:system_info(schedulers))),
+    try Fun() after erlang:system_flag(schedulers_online, Old) end.
+
+assert_same(Name, Expected, Actual) ->
+    case Expected =:= Actual of
+        true -> ok;
+        false ->
+            Diff = first_diff(Expected, Actual),
+            ct:pal("~s differs from the reference; first difference:~n~p", [Name, Diff]),
+            ct:fail({not_equal, Name})
+    end.
+
+first_diff([X | A], [X | B]) -> first_diff(A, B);
+first_diff([X | _], [Y | _]) -> {expected, X, got, Y};
+first_diff(A, B) -> {length, length(A), length(B)}.
+
+scenario_files() ->
+    lists:sort(filelib:wildcard(filename:join([rw_test_lib:root(), "scenarios", "*.json"]))).
+
+%% Long scenes are compared over their first part to keep the suite fast.
+until(File) ->
+    {ok, Scene} = rigidwarp:load(File, #{}),
+    Bodies = length(element(9, Scene)),
+    Duration = element(4, Scene),
+    Budget = if Bodies > 300 -> 200; Bodies > 100 -> 400; Bodies > 10 -> 1000; true -> Duration end,
+    Substep = element(5, Scene),
+    max(Substep, (min(Duration, Budget) div Substep) * Substep).
+
+%%% Equality
+
+scenarios_equal(_Config) ->
+    Files = scenario_files(),
+    ?assert(length(Files) > 0),
+    Compared = [begin
+                    Opts = #{until => until(F)},
+                    {Ref, _} = frames(reference, F, Opts),
+                    [begin
+                         {Tw, #{efficiency := Eff}} = with_schedulers(S, fun() -> frames(timewarp, F, Opts) end),
+                         assert_same(io_lib:format("~s on ~b schedulers", [filename:basename(F), S]), Ref, Tw),
+                         ct:pal("~s: ~b frames equal on ~b scheduler(s), efficiency ~.3f",
+                                [filename:basename(F), length(Ref), S, Eff])
+                     end || S <- [1, 2]],
+                    F
+                end || F <- Files],
+    {comment, io_lib:format("~b scenarios x 2 scheduler counts", [length(Compared)])}.
+
+%% One colliding scene over the matrix of strides and bucket counts.
+strides_and_buckets_equal(_Config) ->
+    File = rw_test_lib:scenario("bouncing_200_100.json"),
+    Base = #{until => 300},
+    {Ref, _} = frames(reference, File, Base),
+    Configs = [{Stride, Buckets, S} || Stride <- [1, 16, 64, 256], Buckets <- [1, 7, 64], S <- [1, 2],
+                                       not (Stride =:= 1 andalso Buckets =:= 1)],
+    [begin
+         {Tw, _} = with_schedulers(S, fun() -> frames(timewarp, File, Base#{stride => Stride, buckets => Buckets}) end),
+         assert_same(io_lib:format("stride ~b, ~b buckets, ~b schedulers", [Stride, Buckets, S]), Ref, Tw)
+     end || {Stride, Buckets, S} <- Configs],
+    {comment, io_lib:format("~b configurations", [length(Configs)])}.
+
+random_scenes_equal(_Config) ->
+    Prop = ?FORALL({SceneMap, Stride, Buckets, Sched}, {scene_map(), stride(), buckets(), oneof([1, 2])},
+                   case rw_scene:from_map(SceneMap#{<<"stride_ms">> => Stride * maps:get(<<"substep_ms">>, SceneMap)}, #{}) of
+                       {error, _} ->
+                           true;   % the generator can ask for a packing that cannot be placed
+                       {ok, Scene} ->
+                           {Ref, _} = frames(reference, Scene, #{}),
+                           Tw = try with_schedulers(Sched, fun() -> frames(timewarp, Scene, #{buckets => Buckets}) end) of
+                                    {Frames, _} -> Frames
+                                catch C:E -> {C, E}
+                                end,
+                           ?WHENFAIL(ct:pal("scene ~p~nstride ~p, ~p buckets, ~p schedulers~nfirst diff ~p",
+                                            [SceneMap, Stride, Buckets, Sched, first_diff(Ref, Tw)]),
+                                     Ref =:= Tw)
+                   end),
+    true = proper:quickcheck(Prop, [{numtests, 40}, {to_file, user}, long_result]).
+
+stride() -> oneof([1, 2, 8, 64, 256]).
+buckets() -> oneof([1, 3, 16, 64]).
+
+%% Random small scenes: spheres with random velocities in a container,
+%% with or without gravity, rotation, friction, CCD, any integrator.
+scene_map() ->
+    ?LET({N, Seed, R, Speed, Half, Restitution, Gravity, Rotation, Friction, Ccd, Integrator, Substep, Dur},
+         {range(2, 14), range(1, 1000000), oneof([0.1, 0.2, 0.3]), oneof([0.5, 3.0, 10.0]),
+          oneof([1.0, 1.5, 2.5]), oneof([0.0, 0.5, 1.0]), boolean(), boolean(),
+          oneof([none, 0.2, 0.8]), boolean(), oneof([<<"symplectic_euler">>, <<"verlet">>, <<"explicit_euler">>]),
+          oneof([1, 2]), oneof([100, 300])},
+         begin
+             Model0 = #{<<"restitution">> => Restitution, <<"rotation">> => Rotation, <<"ccd">> => Ccd,
+                        <<"integrator">> => Integrator},
+             Model1 = case Gravity of true -> Model0#{<<"gravity">> => [0.0, -9.81, 0.0]}; false -> Model0 end,
+             Model = case Friction of none -> Model1; Mu -> Model1#{<<"friction">> => Mu} end,
+             #{<<"name">> => <<"random">>, <<"duration_ms">> => Dur, <<"substep_ms">> => Substep,
+               <<"frame_ms">> => 10 * Substep, <<"model">> => Model,
+               <<"bodies">> => [#{<<"id">> => <<"cage">>, <<"shape">> => <<"box">>, <<"static">> => true,
+                                  <<"hollow">> => true, <<"half_extents">> => [Half, Half, Half],
+                                  <<"position">> => [0, 0, 0]}],
+               <<"generators">> => [#{<<"type">> => <<"random">>, <<"id_prefix">> => <<"s">>, <<"count">> => N,
+                                      <<"seed">> => Seed, <<"min">> => [-Half, -Half, -Half],
+                                      <<"max">> => [Half, Half, Half], <<"radius">> => R, <<"mass">> => 1.0,
+                                      <<"speed">> => Speed}]}
+         end).
+
+%% The escript writes byte-identical frames files with either engine.
+escript_frames_identical(Config) ->
+    Dir = ?config(priv_dir, Config),
+    File = rw_test_lib:scenario("bouncing_200_250.json"),
+    Out = fun(Name, Args) ->
+                  Path = filename:join(Dir, Name),
+                  {0, Stdout, _} = rw_test_lib:run_escript(["run", File, "--until", "300", "--quiet",
+                                                            "--frames", Path | Args]),
+                  Summary = jiffy:decode(lists:last(binary:split(string:trim(Stdout), <<"\n">>, [global])),
+                                         [return_maps]),
+                  {ok, Bin} = file:read_file(Path),
+                  {Bin, Summary}
+          end,
+    {Ref, #{<<"engine">> := <<"reference">>}} = Out("ref.jsonl", ["--engine", "reference"]),
+    [begin
+         {Bin, #{<<"engine">> := <<"timewarp">>, <<"efficiency">> := Eff, <<"rollbacks">> := Rb}} =
+             Out("tw.jsonl", ["--schedulers", S, "--stride", St]),
+         ?assert(Eff > 0.0 andalso Eff =< 1.0),
+         ?assert(is_integer(Rb)),
+         ?assertEqual(Ref, Bin)
+     end || S <- ["1", "2"], St <- ["1", "64"]],
+    ok.
+
+%%% Liveness
+
+random_delays_terminate_and_equal(_Config) ->
+    File = rw_test_lib:scenario("bouncing_200_100.json"),
+    {ok, Scene} = rigidwarp:load(File, #{until => 100}),
+    {Ref, _} = frames(reference, Scene, #{}),
+    Prop = ?FORALL({Seed, MaxMs, Stride}, {range(1, 100000), range(0, 3), oneof([1, 8, 64])},
+                   begin
+                       {Tw, _} = frames(timewarp, Scene, #{delay => {Seed, MaxMs}, stride => Stride}),
+                       Ref =:= Tw
+                   end),
+    true = proper:quickcheck(Prop, [{numtests, 8}, {to_file, user}]).
+
+watchdog_names_stuck_body(_Config) ->
+    File = rw_test_lib:scenario("head_on_elastic.json"),
+    {ok, Scene} = rigidwarp:load(File, #{until => 1000000}),
+    {ok, #{sim := _} = H} = rw_timewarp:start(Scene, #{owner => self(), watchdog_ms => 300}),
+    #{sup := Sup, gvt := Gvt} = H,
+    #{bodies := BodySup} = rw_sim_sup:children(Sup),
+    [{_, Body, _, _} | _] = supervisor:which_children(BodySup),
+    ok = sys:suspend(Body),
+    Report = receive {rw_stalled, Gvt, _G, R} -> R after 5000 -> ct:fail(no_watchdog) end,
+    sys:resume(Body),
+    rw_timewarp:stop(H),
+    %% the suspended body is named first, as the one holding GVT back
+    [_Header, First | _] = string:split(Report, "\n", all),
+    ?assertMatch({match, _}, re:run(First, "^body a \\(idx 0\\): step at LVT [0-9]+ .*[1-9][0-9]* unread messages")),
+    ok.
+
+%%% Lifecycle
+
+no_leaks_after_100_runs(_Config) ->
+    File = rw_test_lib:scenario("head_on_elastic.json"),
+    {ok, Scene} = rigidwarp:load(File, #{until => 20}),
+    Warm = fun() -> {ok, _} = rw_timewarp:run(Scene, #{buckets => 8}) end,
+    Warm(),
+    Procs0 = erlang:system_info(process_count),
+    Tabs0 = length(ets:all()),
+    [Warm() || _ <- lists:seq(1, 100)],
+    timer:sleep(100),
+    ?assertEqual([], supervisor:which_children(rw_sims_sup)),
+    ?assertEqual(Procs0, erlang:system_info(process_count)),
+    ?assertEqual(Tabs0, length(ets:all())),
+    ok.
+
+frames_api(_Config) ->
+    File = rw_test_lib:scenario("head_on_elastic.json"),
+    {ok, Sim} = rigidwarp:start(File, #{}),
+    ok = rigidwarp:subscribe(Sim),
+    First = receive {rw_frame, _, {frame, 0, _} = F0} -> F0 after 5000 -> ct:fail(no_frame) end,
+    ok = rigidwarp:await(Sim, 10000),
+    {frame, 1000, Bodies} = rigidwarp:frames(Sim, latest),
+    ?assertEqual(2, length(Bodies)),
+    ?assertEqual(First, rigidwarp:frames(Sim, 0)),
+    ok = rigidwarp:stop(Sim),
+    ok.
