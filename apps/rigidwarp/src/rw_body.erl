@@ -221,7 +221,7 @@ send_events(T, Hits, Ids, #d{idx = Idx, sphere = S, model = M, hist = Hist, cont
                                                  false -> swap(rw_response:pair(M, OS, OSt, S, St, Contact))
                                              end,
                              Cid = maps:get(OIdx, Ids),
-                             OPid ! {event, Cid, T, Idx, self(), Theirs},
+                             send(OPid, {event, Cid, T, Idx, self(), Theirs}, D),
                              {Acc#{Cid => {OIdx, Own}}, P#{Cid => true}}
                      end, {maps:get(T, Contacts, #{}), D#d.pend_ev}, Hits),
     counters:add(D#d.sim#sim.stats, ?ST_EVENTS, length(Hits)),
@@ -245,7 +245,7 @@ on_event(Cid, T, FromIdx, From, Effect, #d{ghosts = Ghosts, lvt = Lvt, contacts 
                              roll_back(T, D1);
                      false -> withdraw(T, D1)
                  end,
-            From ! {ack, event, Cid},
+            send(From, {ack, event, Cid}, D2),
             D2
     end.
 
@@ -264,7 +264,7 @@ on_antievent(Cid, T, From, #d{contacts = Contacts, lvt = Lvt} = D) ->
                  %% already gone with a state we deleted ourselves
                  D
          end,
-    From ! {ack, anti, Cid},
+    send(From, {ack, anti, Cid}, D2),
     D2.
 
 %% Go back to R: delete the states after R from the TVHT, send antievents
@@ -287,7 +287,7 @@ roll_back(R, #d{idx = Idx, hist = Hist, contacts = Contacts, sim = Sim} = D) ->
                       true -> {PA, G};
                       false ->
                           Partner = case Detector of Me -> Other; _ -> Detector end,
-                          Partner ! {antievent, Cid, T, Me},
+                          send(Partner, {antievent, Cid, T, Me}, D),
                           Known = maps:is_key(Cid, maps:get(T, Contacts, #{})),
                           G1 = case Detector =/= Me andalso not Known of
                                    true -> G#{Cid => true};
@@ -311,10 +311,10 @@ commit(T, #st{p = P, q = Q}, {V, W, _U}, #d{sim = Sim, idx = Idx, sphere = #sphe
     case T > D#d.gvt andalso is_sync(T, D) andalso not lists:member(T, D#d.committed) of
         true ->
             ets:insert(Sim#sim.records, {{T, Idx}, {Id, P, V, Q, W}}),
-            case ets:update_counter(Sim#sim.counts, T, 1, {T, 0}) of
-                N when N =:= Sim#sim.n -> Sim#sim.gvt ! {complete, T};
-                _ -> ok
-            end,
+            _ = case ets:update_counter(Sim#sim.counts, T, 1, {T, 0}) of
+                    N when N =:= Sim#sim.n -> Sim#sim.gvt ! {complete, T};
+                    _ -> ok
+                end,
             D#d{committed = [T | D#d.committed]};
         false ->
             D
@@ -339,6 +339,13 @@ on_gvt(G, #d{hist = Hist, contacts = Contacts, committed = Committed} = D) ->
     Keep = fun(T, _) -> T >= G end,
     D#d{gvt = G, hist = maps:filter(Keep, Hist), contacts = maps:filter(Keep, Contacts),
         committed = [T || T <- Committed, T > G]}.
+
+%% Every message to another body goes through here, so that the test hook
+%% can delay it (the sender pauses, which keeps per-pair order).
+send(Pid, Msg, D) ->
+    maybe_delay(D),
+    Pid ! Msg,
+    ok.
 
 %% Test hook: a random pause before TVHT work shuffles the order in which
 %% bodies interleave (liveness and equality must not depend on it).

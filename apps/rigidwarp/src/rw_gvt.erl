@@ -83,7 +83,7 @@ handle_info(watchdog, #s{last_advance = Last, watchdog_ms = W} = S) ->
         true ->
             Report = diagnose(S),
             logger:error("rigidwarp: GVT stuck at ~b ms for ~b ms~n~ts", [S#s.gvt, W, Report]),
-            notify(S#s.owner, {rw_stalled, self(), S#s.gvt, Report}),
+            ok = notify(S#s.owner, {rw_stalled, self(), S#s.gvt, Report}),
             {noreply, S#s{last_advance = now_ms()}};
         false ->
             erlang:send_after(W div 4 + 1, self(), watchdog),
@@ -111,18 +111,18 @@ advance(#s{complete = C, sim = #sim{end_ms = End} = Sim} = S) ->
                      true ->
                          Frame = {frame, Next, ets:select(Sim#sim.records, [{{{Next, '_'}, '$1'}, [], ['$1']}])},
                          write_ring(Next, Frame, S),
-                         [P ! {rw_frame, self(), Frame} || P <- S#s.subscribers],
+                         _ = [P ! {rw_frame, self(), Frame} || P <- S#s.subscribers],
                          S#s{frames = S#s.frames + 1};
                      false ->
                          S
                  end,
             ets:select_delete(Sim#sim.records, [{{{Next, '_'}, '_'}, [], [true]}]),
             ets:delete(Sim#sim.counts, Next),
-            [B ! {gvt, Next} || B <- S#s.bodies],
+            _ = [B ! {gvt, Next} || B <- S#s.bodies],
             [rw_bucket:gvt(B, Next) || B <- tuple_to_list(Sim#sim.buckets)],
             S1 = S0#s{gvt = Next, complete = C1, last_advance = now_ms()},
             case Next of
-                End -> notify(S#s.owner, {rw_done, self(), End}), S1;
+                End -> ok = notify(S#s.owner, {rw_done, self(), End}), S1;
                 _ -> advance(S1)
             end;
         error ->
@@ -140,7 +140,7 @@ write_ring(T, Frame, #s{sim = Sim, ring_size = Size, frames = K}) ->
     ets:insert(Ring, [{{t, T}, Frame}, {{slot, K rem Size}, T}, {latest, T}]).
 
 notify(undefined, _) -> ok;
-notify(Pid, Msg) -> Pid ! Msg.
+notify(Pid, Msg) -> Pid ! Msg, ok.
 
 %% Who waits on whom: each body's phase, LVT, what it awaits and how many
 %% messages it has not read yet, the bodies holding GVT back first.

@@ -36,7 +36,7 @@ start(#scene{spheres = Spheres, initial = Initial, duration_ms = End} = Scene, O
                           {ok, Pid} = supervisor:start_child(BodySup, [Sim, Sphere, St]),
                           Pid
                       end || {Sphere, St} <- lists:zip(Spheres, Initial)],
-            case maps:find(delay, Opts) of
+            _ = case maps:find(delay, Opts) of
                 {ok, {Seed, MaxMs}} -> [P ! {delay, Seed + I, MaxMs} || {I, P} <- lists:zip(lists:seq(1, length(Bodies)), Bodies)];
                 error -> ok
             end,

@@ -26,8 +26,8 @@ exit codes: 0 ok, 1 runtime failure, 2 bad input
 
 -spec main([string()]) -> no_return().
 main(Args) ->
-    logger:remove_handler(default),
-    logger:add_handler(stderr, logger_std_h, #{config => #{type => standard_error},
+    _ = logger:remove_handler(default),
+    _ = logger:add_handler(stderr, logger_std_h, #{config => #{type => standard_error},
                                               formatter => {logger_formatter, #{single_line => true}}}),
     Code = try dispatch(Args)
            catch
