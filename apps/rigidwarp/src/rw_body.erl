@@ -46,6 +46,9 @@
     pend_anti = #{} :: #{cid() => true},
     ghosts = #{} :: #{cid() => true},
     committed = [] :: [non_neg_integer()],     % frame times committed, newest first
+    gc_at = 0 :: non_neg_integer(),            % next GVT at which to prune history
+    %% where each write went: {T0, UpTo, [{BucketIndex, Pid, Cells}]}, newest first
+    written = [] :: [{non_neg_integer(), non_neg_integer(), [{non_neg_integer(), pid(), [rw_hash:cell()]}]}],
     delay = 0 :: non_neg_integer()              % test hook: max pause (ms) before TVHT work
 }).
 -opaque data() :: #d{}.
@@ -162,18 +165,23 @@ fixture_contacts(#st{p = P}, Shape, #d{model = #model{ccd = false}, sphere = #sp
 fixture_contacts(#st{p = P} = St, Shape, #d{model = #model{ccd = true} = M, sphere = #sphere{radius = R}}) ->
     rw_narrow:swept_sphere_fixture(P, rw_integrate:free_displacement(M, St), R, Shape).
 
-%% Write States ([{T, St}], ascending) to the TVHT under lock; stop at the
-%% first substep with contacts, send the events for them. LVT becomes that
-%% substep, or Last.
-write_states(States, Last, #d{idx = Idx, sphere = S, model = M, sim = Sim, hist = Hist} = D) ->
-    Writes = [{T, {Idx, self(), S, St, disp(M, St)}} || {T, St} <- States],
-    Plan = plan([{T, Entry, cells(Entry, Sim)} || {T, Entry} <- Writes], Sim),
+%% Write States ([{T, St}], consecutive substeps) to the TVHT under lock;
+%% stop at the first substep with contacts and send the events for them.
+%% LVT becomes that substep, or Last.
+write_states([{T0, _} | _] = States, Last,
+             #d{idx = Idx, sphere = S, model = M, sim = Sim, hist = Hist, written = Written} = D) ->
+    Sts = list_to_tuple([St || {_, St} <- States]),
+    Disps = case M#model.ccd of
+                true -> list_to_tuple([rw_integrate:free_displacement(M, St) || {_, St} <- States]);
+                false -> undefined
+            end,
+    Payload = {Idx, self(), S, T0, Sts, Disps},
+    Plan = plan(cell_spans(States, Disps, D), Sim),
     maybe_delay(D),
-    Results = [{B, rw_bucket:lock_probe(Pid, self(), Cells, Ws)} || {B, Pid, Cells, Ws} <- Plan],
-    Found = [R || {_, R} <- Results, R =/= none],
-    {UpTo, Hits} = case Found of
+    Results = [rw_bucket:lock_probe(Pid, self(), Cells, Payload, Spans) || {_, Pid, Cells, Spans} <- Plan],
+    {UpTo, Hits} = case [R || R <- Results, R =/= none] of
                        [] -> {Last, []};
-                       _ ->
+                       Found ->
                            TStar = lists:min([T || {T, _} <- Found]),
                            {TStar, lists:ukeysort(1, [{element(1, E), {E, C}} || {T, Hs} <- Found, T =:= TStar,
                                                                                   {E, C} <- Hs])}
@@ -183,33 +191,49 @@ write_states(States, Last, #d{idx = Idx, sphere = S, model = M, sim = Sim, hist 
     Hist1 = lists:foldl(fun({T, St}, H) when T =< UpTo -> H#{T => St};
                            (_, H) -> H
                         end, Hist, States),
-    D1 = D#d{hist = Hist1, lvt = UpTo},
+    Where = [{B, Pid, Cells} || {B, Pid, Cells, _} <- Plan],
+    D1 = D#d{hist = Hist1, lvt = UpTo, written = [{T0, UpTo, Where} | Written]},
     send_events(UpTo, Hits, Ids, D1).
 
-disp(#model{ccd = true} = M, St) -> rw_integrate:free_displacement(M, St);
-disp(_, _) -> undefined.
+%% For each cell touched during the step, the first and last substep at
+%% which the body's box (swept with CCD) touches it. Boxes seldom change
+%% between substeps, so cells are enumerated only when they do.
+cell_spans([{T0, St0} | Rest], Disps, D) ->
+    spans(Rest, 2, Disps, box(St0, disp_at(Disps, 1), D), T0, T0, D, #{}).
 
-cells({_, _, #sphere{radius = R}, #st{p = P}, undefined}, #sim{scene = #scene{cell_size = C}}) ->
-    rw_hash:cells(rw_shape:sphere_aabb(P, R), C);
-cells({_, _, #sphere{radius = R}, #st{p = P}, Disp}, #sim{scene = #scene{cell_size = C}}) ->
-    rw_hash:cells(rw_shape:swept_aabb(P, Disp, R), C).
+spans([], _I, _Disps, Box, Ta, Tb, _D, Acc) ->
+    add_run(Box, Ta, Tb, Acc);
+spans([{T, St} | Rest], I, Disps, Box, Ta, Tb, D, Acc) ->
+    case box(St, disp_at(Disps, I), D) of
+        Box -> spans(Rest, I + 1, Disps, Box, Ta, T, D, Acc);
+        New -> spans(Rest, I + 1, Disps, New, T, T, D, add_run(Box, Ta, Tb, Acc))
+    end.
 
-%% Group per-state cells by bucket, in bucket order (the lock order):
-%% [{BucketIndex, Pid, AllCellsInBucket, [{T, Payload, CellsInBucket}]}].
-plan(Items, #sim{buckets = Buckets}) ->
+add_run(Box, Ta, Tb, Acc) ->
+    lists:foldl(fun(C, A) -> case A of
+                                 #{C := {First, _}} -> A#{C => {First, Tb}};
+                                 _ -> A#{C => {Ta, Tb}}
+                             end
+                end, Acc, rw_hash:box_cells(Box)).
+
+disp_at(undefined, _) -> undefined;
+disp_at(Disps, I) -> element(I, Disps).
+
+box(#st{p = P}, undefined, #d{sphere = #sphere{radius = R}, sim = #sim{scene = #scene{cell_size = C}}}) ->
+    rw_hash:box(rw_shape:sphere_aabb(P, R), C);
+box(#st{p = P}, Disp, #d{sphere = #sphere{radius = R}, sim = #sim{scene = #scene{cell_size = C}}}) ->
+    rw_hash:box(rw_shape:swept_aabb(P, Disp, R), C).
+
+%% Group cell spans by bucket, in bucket order (the lock order):
+%% [{BucketIndex, Pid, Cells, [{Cell, Ta, Tb}]}].
+plan(Spans, #sim{buckets = Buckets}) ->
     NB = tuple_size(Buckets),
-    ByBucket = lists:foldl(
-                 fun({T, Payload, Cells}, Acc) ->
-                         Split = lists:foldl(fun(C, A) -> maps:update_with(rw_hash:bucket(C, NB),
-                                                                            fun(L) -> [C | L] end, [C], A)
-                                             end, #{}, Cells),
-                         maps:fold(fun(B, Cs, A) ->
-                                           maps:update_with(B, fun(L) -> [{T, Payload, Cs} | L] end,
-                                                            [{T, Payload, Cs}], A)
-                                   end, Acc, Split)
-                 end, #{}, Items),
-    [{B, element(B + 1, Buckets), lists:usort(lists:append([Cs || {_, _, Cs} <- Ws])), lists:reverse(Ws)}
-     || {B, Ws} <- lists:sort(maps:to_list(ByBucket))].
+    ByBucket = maps:fold(fun(Cell, {Ta, Tb}, Acc) ->
+                                 B = rw_hash:bucket(Cell, NB),
+                                 maps:update_with(B, fun(L) -> [{Cell, Ta, Tb} | L] end, [{Cell, Ta, Tb}], Acc)
+                         end, #{}, Spans),
+    [{B, element(B + 1, Buckets), lists:sort([C || {C, _, _} <- Ss]), Ss}
+     || {B, Ss} <- lists:sort(maps:to_list(ByBucket))].
 
 send_events(_T, [], _Ids, D) -> D;
 send_events(T, Hits, Ids, #d{idx = Idx, sphere = S, model = M, hist = Hist, contacts = Contacts} = D) ->
@@ -270,14 +294,18 @@ on_antievent(Cid, T, From, #d{contacts = Contacts, lvt = Lvt} = D) ->
 %% Go back to R: delete the states after R from the TVHT, send antievents
 %% for the contacts they had, forget commits from R on.
 roll_back(R, #d{lvt = Lvt} = D) when R >= Lvt -> withdraw(R, D);
-roll_back(R, #d{idx = Idx, hist = Hist, contacts = Contacts, sim = Sim} = D) ->
-    Gone = [{T, maps:get(T, Hist)} || T <- lists:sort(maps:keys(Hist)), T > R],
-    Plan = plan([{T, Idx, cells(Entry, Sim)} || {T, St} <- Gone,
-                                                 Entry <- [{Idx, self(), D#d.sphere, St, disp(D#d.model, St)}]],
-                Sim),
+roll_back(R, #d{idx = Idx, hist = Hist, contacts = Contacts, sim = Sim, written = Written} = D) ->
+    Gone = [T || T <- maps:keys(Hist), T > R],
+    %% every bucket holding a state after R, with the cells it holds them in
+    Where = lists:foldl(fun({B, Pid, Cells}, Acc) ->
+                                maps:update_with({B, Pid}, fun(Cs) -> Cells ++ Cs end, Cells, Acc)
+                        end, #{}, [X || {_, UpTo, Ws} <- Written, UpTo > R, X <- Ws]),
     maybe_delay(D),
-    Lost = lists:append([rw_bucket:lock_delete(Pid, self(), Cells, Ds) || {_, Pid, Cells, Ds} <- Plan]),
-    [rw_bucket:unlock(Pid, self()) || {_, Pid, _, _} <- Plan],
+    Plan = lists:sort(maps:to_list(Where)),
+    Lost = lists:append([rw_bucket:lock_delete(Pid, self(), lists:usort(Cells), Idx, R)
+                         || {{_, Pid}, Cells} <- Plan]),
+    [rw_bucket:unlock(Pid, self()) || {{_, Pid}, _} <- Plan],
+    Written1 = [{T0, min(UpTo, R), Ws} || {T0, UpTo, Ws} <- Written, T0 =< R],
     counters:add(Sim#sim.stats, ?ST_ROLLED_BACK, length(Gone)),
     Me = self(),
     {PendAnti, Ghosts} =
@@ -299,7 +327,7 @@ roll_back(R, #d{idx = Idx, hist = Hist, contacts = Contacts, sim = Sim} = D) ->
     counters:add(Sim#sim.stats, ?ST_ANTIEVENTS, map_size(PendAnti) - map_size(D#d.pend_anti)),
     Keep = fun(T, _) -> T =< R end,
     withdraw(R, D#d{lvt = R, hist = maps:filter(Keep, Hist), contacts = maps:filter(Keep, Contacts),
-                    pend_ev = #{}, pend_anti = PendAnti, ghosts = Ghosts}).
+                    pend_ev = #{}, pend_anti = PendAnti, ghosts = Ghosts, written = Written1}).
 
 %%% Commits (the GVT counter)
 
@@ -335,10 +363,14 @@ withdraw(T, #d{committed = Committed, sim = Sim, idx = Idx} = D) ->
      end || C <- Gone],
     D#d{committed = Kept}.
 
-on_gvt(G, #d{hist = Hist, contacts = Contacts, committed = Committed} = D) ->
+%% History before GVT can never be needed again; pruning it costs a pass,
+%% so it is done once per stride.
+on_gvt(G, #d{gc_at = At} = D) when G < At -> D#d{gvt = G};
+on_gvt(G, #d{hist = Hist, contacts = Contacts, committed = Committed, written = Written, stride = Stride} = D) ->
     Keep = fun(T, _) -> T >= G end,
     D#d{gvt = G, hist = maps:filter(Keep, Hist), contacts = maps:filter(Keep, Contacts),
-        committed = [T || T <- Committed, T > G]}.
+        committed = [T || T <- Committed, T > G], written = [W || {_, UpTo, _} = W <- Written, UpTo >= G],
+        gc_at = G + Stride}.
 
 %% Every message to another body goes through here, so that the test hook
 %% can delay it (the sender pauses, which keeps per-pair order).

@@ -1,8 +1,11 @@
 %% A bucket of the temporal volumetric hash table (TVHT). A fixed pool of
-%% buckets shares the cells of Z^3 (rw_hash:bucket/2). A bucket keeps the
-%% states written at each (LVT, cell), runs the narrowphase when a body
-%% writes, remembers the contacts it reported, returns them when one of the
-%% two states is deleted, and locks cells for one writer at a time.
+%% buckets shares the cells of Z^3 (rw_hash:bucket/2). A body writes the
+%% states of one step at once: for each cell its AABB touches, the range of
+%% substeps [Ta, Tb] during which it does. A bucket keeps those segments per
+%% cell, runs the narrowphase on a write against the other bodies' states at
+%% the same LVT in the same cell, remembers the contacts it reported, returns
+%% them when one of the two states is deleted, and locks cells for one writer
+%% at a time.
 %%
 %% Locking (Lemma 1): a body asks the buckets it needs in increasing bucket
 %% index, and a bucket grants a request for a set of its cells only when all
@@ -12,69 +15,78 @@
 -module(rw_bucket).
 -behaviour(gen_server).
 -include("rigidwarp.hrl").
--export([start_link/2, lock_probe/4, commit_unlock/4, lock_delete/4, unlock/2, gvt/2]).
+-export([start_link/3, lock_probe/5, commit_unlock/4, lock_delete/5, unlock/2, gvt/2]).
 -export([init/1, handle_call/3, handle_cast/2, handle_info/2]).
--export_type([entry/0, write/0, hit/0]).
+-export_type([entry/0, payload/0, hit/0, cid/0]).
 
-%% What a body writes at one LVT: who it is and its state (and, with CCD,
-%% its free displacement over the substep).
+%% One step's states of one body: T0 is the LVT of the first state,
+%% States (and, with CCD, the free displacements) hold one per substep.
+-type payload() :: {Idx :: non_neg_integer(), pid(), #sphere{}, T0 :: non_neg_integer(),
+                    States :: tuple(), Disps :: tuple() | undefined}.
+%% A cell touched from Ta to Tb (substeps of the payload).
+-type span() :: {rw_hash:cell(), Ta :: non_neg_integer(), Tb :: non_neg_integer()}.
+%% One body's state at one LVT, as the narrowphase sees it.
 -type entry() :: {Idx :: non_neg_integer(), pid(), #sphere{}, #st{}, Disp :: rw_vec:vec() | undefined}.
--type write() :: {T :: non_neg_integer(), entry(), [rw_hash:cell()]}.
 %% A contact found by the narrowphase, in canonical order (lower idx first).
 -type hit() :: {entry(), #contact{}}.
 -type cid() :: {non_neg_integer(), non_neg_integer(), non_neg_integer(), reference()}.
+-type seg() :: {Ta :: non_neg_integer(), Tb :: non_neg_integer(), payload()}.
 
 -record(state, {
     model :: #model{},
+    dt :: pos_integer(),                     % substep, ms
     locks = #{} :: #{rw_hash:cell() => pid()},
     waiting = [] :: [{gen_server:from(), pid(), [rw_hash:cell()], term()}],
-    states = #{} :: #{non_neg_integer() => #{rw_hash:cell() => [entry()]}},
-    %% contacts reported from this bucket: by {T, Idx} of either body
-    by_body = #{} :: #{{non_neg_integer(), non_neg_integer()} => [cid()]},
+    cells = #{} :: #{rw_hash:cell() => [seg()]},
+    %% contacts reported from this bucket, by body: [{T, Cid}]
+    by_body = #{} :: #{non_neg_integer() => [{non_neg_integer(), cid()}]},
     contacts = #{} :: #{cid() => {Detector :: pid(), Other :: pid()}},
-    probes = #{} :: #{pid() => {non_neg_integer(), [hit()]} | none}
+    probes = #{} :: #{pid() => {payload(), [span()], {non_neg_integer(), [hit()]} | none}},
+    gc_at = 0 :: non_neg_integer()
 }).
 
--spec start_link(#model{}, non_neg_integer()) -> {ok, pid()}.
-start_link(Model, _Index) -> gen_server:start_link(?MODULE, Model, []).
+-spec start_link(#model{}, pos_integer(), non_neg_integer()) -> {ok, pid()}.
+start_link(Model, Dt, _Index) -> gen_server:start_link(?MODULE, {Model, Dt}, []).
 
-%% Lock Cells for the caller, then find the earliest write with contacts:
-%% returns {T, Hits} or none. The caller must follow with commit_unlock/4.
--spec lock_probe(pid(), pid(), [rw_hash:cell()], [write()]) -> {non_neg_integer(), [hit()]} | none.
-lock_probe(Bucket, Owner, Cells, Writes) ->
-    gen_server:call(Bucket, {lock, Owner, Cells, {probe, Writes}}, infinity).
+%% Lock Cells for the caller, then find the earliest LVT at which the
+%% payload touches another body: {T, Hits} or none. The caller must follow
+%% with commit_unlock/4.
+-spec lock_probe(pid(), pid(), [rw_hash:cell()], payload(), [span()]) -> {non_neg_integer(), [hit()]} | none.
+lock_probe(Bucket, Owner, Cells, Payload, Spans) ->
+    gen_server:call(Bucket, {lock, Owner, Cells, {probe, Payload, Spans}}, infinity).
 
-%% Store the writes up to and including UpTo, record the contacts at UpTo
-%% under the ids the writer gave them, and unlock.
+%% Store the probed states up to and including UpTo, record the contacts
+%% at UpTo under the ids the writer gave them (by partner idx), and unlock.
 -spec commit_unlock(pid(), pid(), non_neg_integer(), #{non_neg_integer() => cid()}) -> ok.
 commit_unlock(Bucket, Owner, UpTo, Ids) ->
     gen_server:cast(Bucket, {commit_unlock, Owner, UpTo, Ids}).
 
-%% Lock Cells, delete the caller's states [{T, Idx, CellsAtT}] and return
-%% the contacts that those states had: [{Cid, Detector, Other}].
--spec lock_delete(pid(), pid(), [rw_hash:cell()], [{non_neg_integer(), non_neg_integer(), [rw_hash:cell()]}]) ->
-          [{cid(), pid(), pid()}].
-lock_delete(Bucket, Owner, Cells, Deletes) ->
-    gen_server:call(Bucket, {lock, Owner, Cells, {delete, Deletes}}, infinity).
+%% Lock Cells, delete body Idx's states after R in them, and return the
+%% contacts those states had: [{Cid, Detector, Other}]. Unlock with unlock/2.
+-spec lock_delete(pid(), pid(), [rw_hash:cell()], non_neg_integer(), non_neg_integer()) -> [{cid(), pid(), pid()}].
+lock_delete(Bucket, Owner, Cells, Idx, R) ->
+    gen_server:call(Bucket, {lock, Owner, Cells, {delete, Idx, R, Cells}}, infinity).
 
 -spec unlock(pid(), pid()) -> ok.
 unlock(Bucket, Owner) -> gen_server:cast(Bucket, {unlock, Owner}).
 
-%% Forget everything older than GVT.
+%% Nothing before GVT can change any more: forget it (now and then).
 -spec gvt(pid(), non_neg_integer()) -> ok.
 gvt(Bucket, Gvt) -> gen_server:cast(Bucket, {gvt, Gvt}).
 
 %%% gen_server
 
--spec init(#model{}) -> {ok, #state{}}.
-init(Model) -> {ok, #state{model = Model}}.
+-spec init({#model{}, pos_integer()}) -> {ok, #state{}}.
+init({Model, Dt}) -> {ok, #state{model = Model, dt = Dt}}.
 
 -spec handle_call(term(), gen_server:from(), #state{}) -> {reply, term(), #state{}} | {noreply, #state{}}.
 handle_call({lock, Owner, Cells, Op}, From, S) ->
     case free(Cells, Owner, S#state.locks) of
-        true -> {Reply, S1} = locked_op(Owner, Op, S#state{locks = take(Cells, Owner, S#state.locks)}),
-                {reply, Reply, S1};
-        false -> {noreply, S#state{waiting = S#state.waiting ++ [{From, Owner, Cells, Op}]}}
+        true ->
+            {Reply, S1} = locked_op(Owner, Op, S#state{locks = take(Cells, Owner, S#state.locks)}),
+            {reply, Reply, S1};
+        false ->
+            {noreply, S#state{waiting = S#state.waiting ++ [{From, Owner, Cells, Op}]}}
     end.
 
 -spec handle_cast(term(), #state{}) -> {noreply, #state{}}.
@@ -82,12 +94,24 @@ handle_cast({commit_unlock, Owner, UpTo, Ids}, S) ->
     {noreply, release(Owner, commit(Owner, UpTo, Ids, S))};
 handle_cast({unlock, Owner}, S) ->
     {noreply, release(Owner, S)};
-handle_cast({gvt, Gvt}, #state{states = St, by_body = By, contacts = C} = S) ->
-    Old = [K || {T, _} = K <- maps:keys(By), T < Gvt],
-    Cids = lists:append([maps:get(K, By) || K <- Old]),
-    {noreply, S#state{states = maps:filter(fun(T, _) -> T >= Gvt end, St),
-                      by_body = maps:without(Old, By),
-                      contacts = maps:without(Cids, C)}}.
+handle_cast({gvt, Gvt}, #state{gc_at = At} = S) when Gvt < At ->
+    {noreply, S};
+handle_cast({gvt, Gvt}, #state{cells = Cells, by_body = By, contacts = C, dt = Dt} = S) ->
+    Cells1 = maps:filtermap(fun(_, Segs) ->
+                                    case [Seg || {_, Tb, _} = Seg <- Segs, Tb >= Gvt] of
+                                        [] -> false;
+                                        Kept -> {true, Kept}
+                                    end
+                            end, Cells),
+    By1 = maps:filtermap(fun(_, L) ->
+                                 case [X || {T, _} = X <- L, T >= Gvt] of
+                                     [] -> false;
+                                     Kept -> {true, Kept}
+                                 end
+                         end, By),
+    C1 = maps:filter(fun({T, _, _, _}, _) -> T >= Gvt end, C),
+    %% sweeping costs a pass over every segment: do it every 32 substeps
+    {noreply, S#state{cells = Cells1, by_body = By1, contacts = C1, gc_at = Gvt + 32 * Dt}}.
 
 -spec handle_info(term(), #state{}) -> {noreply, #state{}}.
 handle_info(Msg, S) ->
@@ -108,6 +132,7 @@ take(Cells, Owner, Locks) -> lists:foldl(fun(C, L) -> L#{C => Owner} end, Locks,
 release(Owner, #state{locks = Locks} = S) ->
     grant(S#state{locks = maps:filter(fun(_, O) -> O =/= Owner end, Locks)}).
 
+grant(#state{waiting = []} = S) -> S;
 grant(#state{waiting = Waiting} = S) -> grant(Waiting, [], S).
 
 grant([], Kept, S) -> S#state{waiting = lists:reverse(Kept)};
@@ -123,49 +148,71 @@ grant([{From, Owner, Cells, Op} = W | Rest], Kept, S) ->
 
 %%% Operations under lock
 
-locked_op(Owner, {probe, Writes}, S) ->
-    Result = probe(Writes, S),
-    {Result, S#state{probes = (S#state.probes)#{Owner => {Writes, Result}}}};
-locked_op(_Owner, {delete, Deletes}, S) ->
-    delete(Deletes, S).
+locked_op(Owner, {probe, Payload, Spans}, S) ->
+    Result = probe(Payload, Spans, S),
+    {Result, S#state{probes = (S#state.probes)#{Owner => {Payload, Spans, Result}}}};
+locked_op(_Owner, {delete, Idx, R, Cells}, S) ->
+    delete(Idx, R, Cells, S).
 
-%% The first write (in LVT order) that touches another body's state.
-probe([], _S) -> none;
-probe([{T, Entry, Cells} | Rest], #state{states = States, model = M} = S) ->
-    AtT = maps:get(T, States, #{}),
-    Hits = lists:usort(fun({{IA, _, _, _, _}, _}, {{IB, _, _, _, _}, _}) -> IA =< IB end,
-                       [{Other, C} || Cell <- Cells, Other <- maps:get(Cell, AtT, []),
-                                      C <- contact(M, Entry, Other)]),
-    case Hits of
-        [] -> probe(Rest, S);
-        _ -> {T, Hits}
+%% The earliest LVT at which the payload touches another body's state in
+%% one of its cells, with every contact at that LVT.
+probe({Idx, _, _, _, _, _} = Mine, Spans, #state{cells = Cells} = S) ->
+    lists:foldl(
+      fun({Cell, Ta, Tb}, Best) ->
+              lists:foldl(fun({_, _, {OIdx, _, _, _, _, _}}, B) when OIdx =:= Idx -> B;
+                             ({OTa, OTb, Other}, B) ->
+                                  Lo = max(Ta, OTa),
+                                  Hi = case B of
+                                           none -> min(Tb, OTb);
+                                           {BT, _} -> min(BT, min(Tb, OTb))
+                                       end,
+                                  scan(Lo, Hi, Mine, Other, B, S)
+                          end, Best, maps:get(Cell, Cells, []))
+      end, none, Spans).
+
+scan(T, Hi, _Mine, _Other, Best, _S) when T > Hi -> Best;
+scan(T, Hi, Mine, Other, Best, #state{model = M, dt = Dt} = S) ->
+    A = entry(Mine, T, Dt),
+    B = entry(Other, T, Dt),
+    case contact(M, A, B) of
+        none -> scan(T + Dt, Hi, Mine, Other, Best, S);
+        C ->
+            Hit = {B, C},
+            case Best of
+                {T, Hits} ->
+                    OIdx = element(1, B),
+                    case lists:any(fun({{I, _, _, _, _}, _}) -> I =:= OIdx end, Hits) of
+                        true -> Best;
+                        false -> {T, [Hit | Hits]}
+                    end;
+                _ -> {T, [Hit]}
+            end
     end.
 
-contact(_M, {Idx, _, _, _, _}, {Idx, _, _, _, _}) -> [];
+entry({Idx, Pid, Sphere, T0, States, Disps}, T, Dt) ->
+    I = (T - T0) div Dt + 1,
+    Disp = case Disps of undefined -> undefined; _ -> element(I, Disps) end,
+    {Idx, Pid, Sphere, element(I, States), Disp}.
+
+%% Narrowphase in canonical order: the lower index first.
 contact(M, {IA, _, _, _, _} = A, {IB, _, _, _, _} = B) when IA < IB -> narrow(M, A, B);
 contact(M, A, B) -> narrow(M, B, A).
 
-%% Narrowphase in canonical order: A has the lower index.
 narrow(#model{ccd = false}, {_, _, #sphere{radius = RA}, #st{p = PA}, _}, {_, _, #sphere{radius = RB}, #st{p = PB}, _}) ->
-    case rw_narrow:sphere_sphere(PA, RA, PB, RB) of
-        none -> [];
-        C -> [C]
-    end;
+    rw_narrow:sphere_sphere(PA, RA, PB, RB);
 narrow(#model{ccd = true}, {_, _, #sphere{radius = RA}, #st{p = PA}, DA},
        {_, _, #sphere{radius = RB}, #st{p = PB}, DB}) ->
-    case rw_narrow:swept_sphere_sphere(PA, DA, RA, PB, DB, RB) of
-        none -> [];
-        C -> [C]
-    end.
+    rw_narrow:swept_sphere_sphere(PA, DA, RA, PB, DB, RB).
 
-commit(Owner, UpTo, Ids, #state{probes = Probes} = S) ->
-    {{Writes, Result}, Probes1} = maps:take(Owner, Probes),
-    S1 = lists:foldl(fun({T, Entry, Cells}, Acc) when T =< UpTo -> store(T, Entry, Cells, Acc);
-                        (_, Acc) -> Acc
-                     end, S#state{probes = Probes1}, Writes),
+commit(Owner, UpTo, Ids, #state{probes = Probes, cells = Cells} = S) ->
+    {{{Idx, _, _, _, _, _} = Payload, Spans, Result}, Probes1} = maps:take(Owner, Probes),
+    Cells1 = lists:foldl(fun({Cell, Ta, Tb}, Acc) when Ta =< UpTo ->
+                                 Acc#{Cell => [{Ta, min(Tb, UpTo), Payload} | maps:get(Cell, Acc, [])]};
+                            (_, Acc) -> Acc
+                         end, Cells, Spans),
+    S1 = S#state{probes = Probes1, cells = Cells1},
     case Result of
         {UpTo, Hits} ->
-            {value, {_, {Idx, _, _, _, _}, _}} = lists:keysearch(UpTo, 1, Writes),
             lists:foldl(fun({{OIdx, OPid, _, _, _}, _}, Acc) ->
                                 record(maps:get(OIdx, Ids), UpTo, Idx, Owner, OIdx, OPid, Acc)
                         end, S1, Hits);
@@ -173,32 +220,31 @@ commit(Owner, UpTo, Ids, #state{probes = Probes} = S) ->
             S1
     end.
 
-store(T, Entry, Cells, #state{states = States} = S) ->
-    AtT = maps:get(T, States, #{}),
-    AtT1 = lists:foldl(fun(C, A) -> A#{C => [Entry | maps:get(C, A, [])]} end, AtT, Cells),
-    S#state{states = States#{T => AtT1}}.
-
 record(Cid, T, Idx, Detector, OIdx, Other, #state{by_body = By, contacts = C} = S) ->
-    By1 = maps:update_with({T, OIdx}, fun(L) -> [Cid | L] end, [Cid],
-                           maps:update_with({T, Idx}, fun(L) -> [Cid | L] end, [Cid], By)),
+    Add = fun(L) -> [{T, Cid} | L] end,
+    By1 = maps:update_with(OIdx, Add, [{T, Cid}], maps:update_with(Idx, Add, [{T, Cid}], By)),
     S#state{by_body = By1, contacts = C#{Cid => {Detector, Other}}}.
 
-delete(Deletes, S0) ->
-    lists:foldl(
-      fun({T, Idx, Cells}, {Acc, #state{states = States, by_body = By, contacts = C} = S}) ->
-              AtT = maps:get(T, States, #{}),
-              AtT1 = lists:foldl(fun(Cell, A) ->
-                                         case [E || E <- maps:get(Cell, A, []), element(1, E) =/= Idx] of
-                                             [] -> maps:remove(Cell, A);
-                                             Es -> A#{Cell => Es}
-                                         end
-                                 end, AtT, Cells),
-              States1 = case map_size(AtT1) of 0 -> maps:remove(T, States); _ -> States#{T => AtT1} end,
-              {Cids, By1} = case maps:take({T, Idx}, By) of
-                                {L, B} -> {L, B};
-                                error -> {[], By}
-                            end,
-              Gone = [{Cid, D, O} || Cid <- Cids, {D, O} <- [maps:get(Cid, C, undefined)], D =/= undefined],
-              {Gone ++ Acc, S#state{states = States1, by_body = By1,
-                                    contacts = maps:without(Cids, C)}}
-      end, {[], S0}, Deletes).
+delete(Idx, R, Owned, #state{cells = Cells, by_body = By, contacts = C} = S) ->
+    Cells1 = lists:foldl(
+               fun(Cell, Acc) ->
+                       case maps:find(Cell, Acc) of
+                           error -> Acc;
+                           {ok, Segs} ->
+                               case truncate(Segs, Idx, R) of
+                                   [] -> maps:remove(Cell, Acc);
+                                   Kept -> Acc#{Cell => Kept}
+                               end
+                       end
+               end, Cells, Owned),
+    {Gone, Kept} = lists:partition(fun({T, _}) -> T > R end, maps:get(Idx, By, [])),
+    By1 = case Kept of [] -> maps:remove(Idx, By); _ -> By#{Idx => Kept} end,
+    Lost = [{Cid, D, O} || {_, Cid} <- Gone, {D, O} <- [maps:get(Cid, C, none)]],
+    {Lost, S#state{cells = Cells1, by_body = By1, contacts = maps:without([Cid || {_, Cid} <- Gone], C)}}.
+
+%% Body Idx's segments end at R at the latest.
+truncate(Segs, Idx, R) ->
+    [case Seg of
+         {Ta, Tb, {Idx, _, _, _, _, _} = P} when Tb > R -> {Ta, R, P};
+         _ -> Seg
+     end || {Ta, _, P} = Seg <- Segs, not (element(1, P) =:= Idx andalso Ta > R)].

@@ -20,9 +20,9 @@
 -spec start_link(#scene{}, pos_integer()) -> {ok, pid()} | {error, term()}.
 start_link(Scene, Buckets) -> supervisor:start_link(?MODULE, {sim, Scene, Buckets}).
 
--spec init({sim, #scene{}, pos_integer()} | {buckets, #model{}, pos_integer()} | bodies) ->
+-spec init({sim, #scene{}, pos_integer()} | {buckets, #model{}, pos_integer(), pos_integer()} | bodies) ->
           {ok, {supervisor:sup_flags(), [supervisor:child_spec()]}}.
-init({sim, #scene{model = M}, Buckets}) ->
+init({sim, #scene{model = M, substep_ms = Dt}, Buckets}) ->
     Worker = fun(Id, Mod, Args) -> #{id => Id, start => {Mod, start_link, Args}, restart => permanent,
                                      shutdown => 1000, type => worker} end,
     Sup = fun(Id, Args) -> #{id => Id, start => {supervisor, start_link, [?MODULE, Args]},
@@ -30,11 +30,11 @@ init({sim, #scene{model = M}, Buckets}) ->
     {ok, {#{strategy => rest_for_one, intensity => 0, period => 1},
           [Worker(tables, rw_sim_tables, []),
            Worker(gvt, rw_gvt, []),
-           Sup(buckets, {buckets, M, Buckets}),
+           Sup(buckets, {buckets, M, Dt, Buckets}),
            Sup(bodies, bodies)]}};
-init({buckets, M, N}) ->
+init({buckets, M, Dt, N}) ->
     {ok, {#{strategy => one_for_all, intensity => 0, period => 1},
-          [#{id => {bucket, I}, start => {rw_bucket, start_link, [M, I]}, restart => permanent,
+          [#{id => {bucket, I}, start => {rw_bucket, start_link, [M, Dt, I]}, restart => permanent,
              shutdown => 1000} || I <- lists:seq(0, N - 1)]}};
 init(bodies) ->
     {ok, {#{strategy => simple_one_for_one, intensity => 0, period => 1},
