@@ -264,12 +264,17 @@ no_overlaps(Spheres, Fixtures, CellSize) ->
     [fixture_overlap(S, F) || S <- Spheres, F <- Fixtures],
     ok.
 
-overlap({#sphere{radius = RA, id = IdA}, #st{p = PA}, PathA}, {#sphere{radius = RB, id = IdB}, #st{p = PB}, _}) ->
+%% Reported at whichever of the two comes later in the file.
+overlap({#sphere{radius = RA, id = IdA}, #st{p = PA}, PathA}, {#sphere{radius = RB, id = IdB}, #st{p = PB}, PathB}) ->
     case rw_narrow:sphere_sphere(PA, RA, PB, RB) of
         none -> ok;
         #contact{depth = D} ->
-            invalid(PathA ++ [<<"position">>], "sphere ~s overlaps sphere ~s by ~g m at the start",
-                    [IdA, IdB, D])
+            {Path, Id, Other} = case PathA > PathB of
+                                    true -> {PathA, IdA, IdB};
+                                    false -> {PathB, IdB, IdA}
+                                end,
+            invalid(Path ++ [<<"position">>], "sphere ~s overlaps sphere ~s by ~g m at the start",
+                    [Id, Other, D])
     end.
 
 fixture_overlap({#sphere{radius = R, id = Id}, #st{p = Pos}, Path}, #fixture{id = FId, shape = Shape}) ->

@@ -24,6 +24,9 @@ commands:
 exit codes: 0 ok, 1 runtime failure, 2 bad input
 ").
 
+-define(VALUE_FLAGS, ["--engine", "--schedulers", "--buckets", "--frames", "--until", "--substep",
+                      "--stride", "--frame-ms"]).
+
 -spec main([string()]) -> no_return().
 main(Args) ->
     _ = logger:remove_handler(default),
@@ -93,8 +96,11 @@ parse(["--until", V | Rest], F, O, Q) -> parse(Rest, F, O#{until => pos_int("--u
 parse(["--substep", V | Rest], F, O, Q) -> parse(Rest, F, O#{substep => pos_int("--substep", V)}, Q);
 parse(["--stride", V | Rest], F, O, Q) -> parse(Rest, F, O#{stride => pos_int("--stride", V)}, Q);
 parse(["--frame-ms", V | Rest], F, O, Q) -> parse(Rest, F, O#{frame_ms => pos_int("--frame-ms", V)}, Q);
-parse([[$- | _] = Flag], _, _, _) -> throw({usage, Flag ++ " needs a value or is unknown"});
-parse([[$- | _] = Flag | _], _, _, _) -> throw({usage, "unknown flag " ++ Flag});
+parse([[$- | _] = Flag | _], _, _, _) ->
+    case lists:member(Flag, ?VALUE_FLAGS) of
+        true -> throw({usage, Flag ++ " needs a value"});
+        false -> throw({usage, "unknown flag " ++ Flag})
+    end;
 parse([File | Rest], undefined, O, Q) -> parse(Rest, File, O, Q);
 parse([Extra | _], _, _, _) -> throw({usage, "unexpected argument " ++ Extra}).
 

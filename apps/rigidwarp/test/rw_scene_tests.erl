@@ -1,0 +1,110 @@
+%% Scene validation: every rejection names the JSON path and the problem.
+-module(rw_scene_tests).
+-include_lib("eunit/include/eunit.hrl").
+-include("rigidwarp.hrl").
+
+base() ->
+    #{<<"name">> => <<"t">>, <<"duration_ms">> => 100,
+      <<"bodies">> => [sphere(<<"a">>, [0, 0, 0]), sphere(<<"b">>, [3, 0, 0])]}.
+
+sphere(Id, Pos) ->
+    #{<<"id">> => Id, <<"shape">> => <<"sphere">>, <<"radius">> => 0.5, <<"mass">> => 1.0,
+      <<"position">> => Pos}.
+
+%% The error message for a scene, "" when it is valid.
+error_of(Map) ->
+    case rw_scene:from_map(Map, #{file => "s.json"}) of
+        {ok, _} -> "";
+        {error, E} -> rw_scene:format_error(E)
+    end.
+
+set_body(N, Key, Value) ->
+    Bodies = maps:get(<<"bodies">>, base()),
+    B = lists:nth(N + 1, Bodies),
+    (base())#{<<"bodies">> => lists:sublist(Bodies, N) ++ [B#{Key => Value}] ++ lists:nthtail(N + 1, Bodies)}.
+
+valid_scene_test() ->
+    {ok, #scene{spheres = [#sphere{id = <<"a">>, idx = 0}, #sphere{id = <<"b">>, idx = 1}],
+                substep_ms = 1, stride_ms = 64, frame_ms = 10, model = #model{gravity = undefined,
+                                                                              rotation = false}}} =
+        rw_scene:from_map(base(), #{}).
+
+messages_name_the_path_test_() ->
+    Cases =
+        [{set_body(0, <<"radius">>, -1), "s.json: $.bodies[0].radius: must be positive"},
+         {set_body(1, <<"mass">>, 0), "$.bodies[1].mass: must be positive"},
+         {set_body(1, <<"mass">>, <<"heavy">>), "$.bodies[1].mass: must be a number, got \"heavy\""},
+         {set_body(0, <<"position">>, [0, 0]), "$.bodies[0].position: must be an array of 3 numbers"},
+         {set_body(0, <<"position">>, [0, 1.0e300, 0]), "$.bodies[0].position[1]: must be at most"},
+         {set_body(1, <<"id">>, <<"a">>), "$.bodies[1].id: duplicate id \"a\" (first used at $.bodies[0])"},
+         {set_body(1, <<"position">>, [0.5, 0, 0]), "$.bodies[1].position: sphere b overlaps sphere a"},
+         {set_body(0, <<"shape">>, <<"cone">>), "$.bodies[0].shape: unknown shape \"cone\""},
+         {set_body(0, <<"colour">>, <<"red">>), "$.bodies[0].colour: unknown key"},
+         {set_body(0, <<"angular_velocity">>, [1, 0, 0]), "$.bodies[0].angular_velocity: needs \"rotation\": true"},
+         {(base())#{<<"model">> => #{<<"restitution">> => 1.5}}, "$.model.restitution: must be between 0 and 1"},
+         {(base())#{<<"model">> => #{<<"integrator">> => <<"rk4">>}}, "$.model.integrator: must be"},
+         {(base())#{<<"substep_ms">> => 3}, "$.duration_ms: 100 ms is not a multiple of the substep (3 ms)"},
+         {(base())#{<<"stride_ms">> => 0}, "$.stride_ms: must be a positive integer, got 0"},
+         {(base())#{<<"frame_ms">> => 2.5}, "$.frame_ms: must be a positive integer, got 2.5"},
+         {maps:remove(<<"name">>, base()), "$.name: is required"},
+         {(base())#{<<"bodies">> => []}, "$.bodies: the scene has no dynamic body"},
+         {(base())#{<<"bodies">> => [#{<<"id">> => <<"p">>, <<"shape">> => <<"plane">>, <<"normal">> => [0, 0, 0]},
+                                     sphere(<<"a">>, [0, 5, 0])]},
+          "$.bodies[0].normal: must not be the zero vector"},
+         {(base())#{<<"bodies">> => [#{<<"id">> => <<"p">>, <<"shape">> => <<"plane">>, <<"normal">> => [0, 1, 0]},
+                                     sphere(<<"a">>, [0, 0.2, 0])]},
+          "$.bodies[1].position: sphere a overlaps static p"},
+         {(base())#{<<"bodies">> => [#{<<"id">> => <<"c">>, <<"shape">> => <<"cylinder">>, <<"static">> => false,
+                                       <<"radius">> => 1, <<"half_length">> => 1, <<"position">> => [0, 9, 0]},
+                                     sphere(<<"a">>, [0, 0, 0])]},
+          "$.bodies[0].static: a cylinder must be static"},
+         {(base())#{<<"generators">> => [#{<<"type">> => <<"random">>, <<"id_prefix">> => <<"r">>,
+                                           <<"count">> => 1000, <<"min">> => [10, 10, 10], <<"max">> => [12, 12, 12],
+                                           <<"radius">> => 0.5, <<"mass">> => 1}]},
+          "$.generators[0].count: cannot place 1000 spheres"},
+         {(base())#{<<"extra">> => 1}, "$.extra: unknown key"}],
+    [{Expected, ?_assertMatch({match, _}, re:run(error_of(Map), "\\Q" ++ Expected ++ "\\E"))}
+     || {Map, Expected} <- Cases].
+
+bad_json_test_() ->
+    [?_assertMatch({error, {scene_error, _, [], "invalid JSON" ++ _}}, rw_scene:from_binary(<<"{\"name\": ">>, #{})),
+     ?_assertMatch({error, {scene_error, _, [], "invalid JSON" ++ _}}, rw_scene:from_binary(<<"{\"a\": 1e400}">>, #{})),
+     ?_assertMatch({error, {scene_error, _, [], "a scene must be a JSON object"}}, rw_scene:from_binary(<<"[1]">>, #{})),
+     ?_assertMatch({error, {scene_error, _, [], "invalid JSON" ++ _}}, rw_scene:from_binary(<<0, 255, 12>>, #{}))].
+
+overrides_apply_before_validation_test() ->
+    {ok, #scene{duration_ms = 50, substep_ms = 2, stride_ms = 8}} =
+        rw_scene:from_map(base(), #{overrides => #{duration_ms => 50, substep_ms => 2, stride_ms => 8,
+                                                  frame_ms => 10}}),
+    {error, E} = rw_scene:from_map(base(), #{overrides => #{duration_ms => 51, substep_ms => 2}}),
+    ?assertMatch({match, _}, re:run(rw_scene:format_error(E), "duration_ms: 51 ms")).
+
+generators_are_deterministic_test() ->
+    Map = (base())#{<<"generators">> =>
+                        [#{<<"type">> => <<"random">>, <<"id_prefix">> => <<"r">>, <<"count">> => 20, <<"seed">> => 5,
+                           <<"min">> => [10, 10, 10], <<"max">> => [15, 15, 15], <<"radius">> => 0.3,
+                           <<"mass">> => 1, <<"speed">> => 2},
+                         #{<<"type">> => <<"grid">>, <<"id_prefix">> => <<"g">>, <<"count">> => [3, 1, 2],
+                           <<"origin">> => [-10, 0, 0], <<"spacing">> => [1, 1, 1], <<"radius">> => 0.25,
+                           <<"mass">> => 2}]},
+    {ok, S1} = rw_scene:from_map(Map, #{}),
+    {ok, S2} = rw_scene:from_map(Map, #{}),
+    ?assertEqual(S1#scene.initial, S2#scene.initial),
+    Ids = [Id || #sphere{id = Id} <- S1#scene.spheres],
+    ?assertEqual(2 + 20 + 6, length(Ids)),
+    ?assert(lists:member(<<"r07">>, Ids)),
+    ?assert(lists:member(<<"g5">>, Ids)),
+    %% ranked by id: idx follows the sorted ids
+    ?assertEqual(lists:sort(Ids), Ids),
+    [?assert(rw_vec:len(V) < 2.0) || #st{v = V} <- S1#scene.initial].
+
+rotation_adds_angular_state_test() ->
+    {ok, #scene{initial = [#st{q = {{0.0, 0.0, 0.0}, 1.0}, w = {0.0, 0.0, 0.0}} | _]}} =
+        rw_scene:from_map((base())#{<<"model">> => #{<<"rotation">> => true}}, #{}).
+
+zero_gravity_is_no_gravity_test() ->
+    {ok, #scene{model = #model{gravity = undefined, rest_speed = 0.0}}} =
+        rw_scene:from_map((base())#{<<"model">> => #{<<"gravity">> => [0, 0, 0]}}, #{}),
+    {ok, #scene{model = #model{gravity = {0.0, -10.0, 0.0}, rest_speed = RS}}} =
+        rw_scene:from_map((base())#{<<"model">> => #{<<"gravity">> => [0, -10, 0]}}, #{}),
+    ?assert(abs(RS - 0.02) < 1.0e-12).
