@@ -46,6 +46,10 @@
     pend_anti = #{} :: #{cid() => true},
     ghosts = #{} :: #{cid() => true},
     committed = [] :: [non_neg_integer()],     % frame times committed, newest first
+    %% substeps to integrate ahead in one step: halves on rollback, doubles
+    %% (up to the stride) when a step meets nothing, so that bodies in
+    %% persistent contact do not compute far ahead only to throw it away
+    window = 1 :: pos_integer(),
     gc_at = 0 :: non_neg_integer(),            % next GVT at which to prune history
     %% where each write went: {T0, UpTo, [{BucketIndex, Pid, Cells}]}, newest first
     written = [] :: [{non_neg_integer(), non_neg_integer(), [{non_neg_integer(), pid(), [rw_hash:cell()]}]}],
@@ -92,10 +96,14 @@ init({#sim{scene = #scene{model = M, substep_ms = Dt, frame_ms = F, stride_ms = 
 step(info, go, #d{hist = #{0 := St0}} = D) ->
     %% the initial state is written like any other, at LVT 0
     settle(write_states([{0, St0}], 0, D#d{lvt = 0}));
-step(timeout, step, #d{lvt = Lvt, gvt = Gvt, stride = Stride, end_ms = End} = D) ->
+step(timeout, step, #d{lvt = Lvt, gvt = Gvt, stride = Stride, end_ms = End, dt = Dt} = D) ->
     Last = min(max(Gvt, 0) + Stride, End),
-    case Lvt < Last of
-        true -> settle(advance(Lvt, Last, D));
+    %% A body ahead of GVT waits until it can take at least half a stride:
+    %% it is not the one holding GVT back, and one long step costs far less
+    %% than many short ones.
+    MinStep = max(Dt, (Stride div 2) div Dt * Dt),
+    case Lvt < Last andalso (Last - Lvt >= MinStep orelse Last =:= End) of
+        true -> settle(advance(Lvt, min(Last, Lvt + D#d.window * Dt), D));
         false -> {keep_state, commit_lvt(D)}
     end;
 step(Type, Msg, D) ->
@@ -192,7 +200,12 @@ write_states([{T0, _} | _] = States, Last,
                            (_, H) -> H
                         end, Hist, States),
     Where = [{B, Pid, Cells} || {B, Pid, Cells, _} <- Plan],
-    D1 = D#d{hist = Hist1, lvt = UpTo, written = [{T0, UpTo, Where} | Written]},
+    MaxWindow = max(1, D#d.stride div D#d.dt),
+    Window = case Hits of
+                 [] -> min(MaxWindow, 2 * D#d.window);
+                 _ -> min(MaxWindow, max(1, 2 * ((UpTo - T0) div D#d.dt + 1)))
+             end,
+    D1 = D#d{hist = Hist1, lvt = UpTo, written = [{T0, UpTo, Where} | Written], window = Window},
     send_events(UpTo, Hits, Ids, D1).
 
 %% For each cell touched during the step, the first and last substep at
@@ -327,7 +340,8 @@ roll_back(R, #d{idx = Idx, hist = Hist, contacts = Contacts, sim = Sim, written 
     counters:add(Sim#sim.stats, ?ST_ANTIEVENTS, map_size(PendAnti) - map_size(D#d.pend_anti)),
     Keep = fun(T, _) -> T =< R end,
     withdraw(R, D#d{lvt = R, hist = maps:filter(Keep, Hist), contacts = maps:filter(Keep, Contacts),
-                    pend_ev = #{}, pend_anti = PendAnti, ghosts = Ghosts, written = Written1}).
+                    pend_ev = #{}, pend_anti = PendAnti, ghosts = Ghosts, written = Written1,
+                    window = max(1, D#d.window div 2)}).
 
 %%% Commits (the GVT counter)
 

@@ -159,34 +159,66 @@ locked_op(_Owner, {delete, Idx, R, Cells}, S) ->
 probe({Idx, _, _, _, _, _} = Mine, Spans, #state{cells = Cells} = S) ->
     lists:foldl(
       fun({Cell, Ta, Tb}, Best) ->
-              lists:foldl(fun({_, _, {OIdx, _, _, _, _, _}}, B) when OIdx =:= Idx -> B;
-                             ({OTa, OTb, Other}, B) ->
-                                  Lo = max(Ta, OTa),
-                                  Hi = case B of
-                                           none -> min(Tb, OTb);
-                                           {BT, _} -> min(BT, min(Tb, OTb))
-                                       end,
-                                  scan(Lo, Hi, Mine, Other, B, S)
-                          end, Best, maps:get(Cell, Cells, []))
+              case Cells of
+                  #{Cell := Segs} -> probe_segs(Segs, Idx, Ta, Tb, Mine, Best, S);
+                  _ -> Best
+              end
       end, none, Spans).
 
+probe_segs([], _Idx, _Ta, _Tb, _Mine, Best, _S) -> Best;
+probe_segs([{OTa, OTb, Other} | Rest], Idx, Ta, Tb, Mine, Best, S) ->
+    Lo = max(Ta, OTa),
+    Hi = case Best of
+             none -> min(Tb, OTb);
+             {BT, _} -> min(BT, min(Tb, OTb))
+         end,
+    case Lo =< Hi andalso element(1, Other) =/= Idx of
+        true -> probe_segs(Rest, Idx, Ta, Tb, Mine, scan(Lo, Hi, Mine, Other, Best, S), S);
+        false -> probe_segs(Rest, Idx, Ta, Tb, Mine, Best, S)
+    end.
+
+%% First LVT in [Lo, Hi] at which the two bodies touch. Without CCD the
+%% test is a plain distance check on the stored positions; the contact
+%% itself is computed in canonical order only on a hit.
+scan(Lo, Hi, {_, _, #sphere{radius = RA}, T0A, StsA, undefined} = Mine,
+     {_, _, #sphere{radius = RB}, T0B, StsB, undefined} = Other, Best, #state{dt = Dt} = S) ->
+    Sum = RA + RB,
+    case first_touch((Lo - T0A) div Dt + 1, (Lo - T0B) div Dt + 1, (Hi - Lo) div Dt, StsA, StsB, Sum * Sum) of
+        none -> Best;
+        K -> hit(Lo + K * Dt, Mine, Other, Best, S)
+    end;
 scan(T, Hi, _Mine, _Other, Best, _S) when T > Hi -> Best;
 scan(T, Hi, Mine, Other, Best, #state{model = M, dt = Dt} = S) ->
-    A = entry(Mine, T, Dt),
-    B = entry(Other, T, Dt),
-    case contact(M, A, B) of
+    case contact(M, entry(Mine, T, Dt), entry(Other, T, Dt)) of
         none -> scan(T + Dt, Hi, Mine, Other, Best, S);
-        C ->
-            Hit = {B, C},
-            case Best of
-                {T, Hits} ->
-                    OIdx = element(1, B),
-                    case lists:any(fun({{I, _, _, _, _}, _}) -> I =:= OIdx end, Hits) of
-                        true -> Best;
-                        false -> {T, [Hit | Hits]}
-                    end;
-                _ -> {T, [Hit]}
+        _ -> hit(T, Mine, Other, Best, S)
+    end.
+
+first_touch(IA, IB, Left, StsA, StsB, Sum2) ->
+    #st{p = {XA, YA, ZA}} = element(IA, StsA),
+    #st{p = {XB, YB, ZB}} = element(IB, StsB),
+    DX = XB - XA, DY = YB - YA, DZ = ZB - ZA,
+    case DX * DX + DY * DY + DZ * DZ < Sum2 of
+        true -> 0;
+        false when Left =:= 0 -> none;
+        false ->
+            case first_touch(IA + 1, IB + 1, Left - 1, StsA, StsB, Sum2) of
+                none -> none;
+                K -> K + 1
             end
+    end.
+
+hit(T, Mine, Other, Best, #state{model = M, dt = Dt}) ->
+    B = entry(Other, T, Dt),
+    Hit = {B, contact(M, entry(Mine, T, Dt), B)},
+    case Best of
+        {T, Hits} ->
+            OIdx = element(1, B),
+            case lists:any(fun({{I, _, _, _, _}, _}) -> I =:= OIdx end, Hits) of
+                true -> Best;
+                false -> {T, [Hit | Hits]}
+            end;
+        _ -> {T, [Hit]}
     end.
 
 entry({Idx, Pid, Sphere, T0, States, Disps}, T, Dt) ->

@@ -24,8 +24,10 @@ box_cells({X0, X1, Y0, Y1, Z0, Z1}) ->
 -spec cell_of(rw_vec:vec(), float()) -> cell().
 cell_of({X, Y, Z}, S) -> {idx(X, S), idx(Y, S), idx(Z, S)}.
 
-%% Bucket index in 0..N-1.
+%% Bucket index in 0..N-1. Blocks of 4x4x4 neighbouring cells share a
+%% bucket, so that a body's few cells usually live in one or two buckets
+%% (one message each per step) while distant regions spread over the pool.
 -spec bucket(cell(), pos_integer()) -> non_neg_integer().
-bucket(Cell, N) -> erlang:phash2(Cell, N).
+bucket({X, Y, Z}, N) -> erlang:phash2({X bsr 2, Y bsr 2, Z bsr 2}, N).
 
 idx(X, S) -> floor(X / S).
