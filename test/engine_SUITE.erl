@@ -124,7 +124,7 @@ random_scenes_equal(_Config) ->
                                             [SceneMap, Stride, Buckets, Sched, first_diff(Ref, Tw)]),
                                      Ref =:= Tw)
                    end),
-    true = proper:quickcheck(Prop, [{numtests, 40}, {to_file, user}, long_result]).
+    true = proper:quickcheck(Prop, [{numtests, 100}, {to_file, user}, long_result]).
 
 stride() -> oneof([1, 2, 8, 64, 256]).
 buckets() -> oneof([1, 3, 16, 64]).

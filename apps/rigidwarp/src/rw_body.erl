@@ -98,11 +98,11 @@ step(info, go, #d{hist = #{0 := St0}} = D) ->
     settle(write_states([{0, St0}], 0, D#d{lvt = 0}));
 step(timeout, step, #d{lvt = Lvt, gvt = Gvt, stride = Stride, end_ms = End, dt = Dt} = D) ->
     Last = min(max(Gvt, 0) + Stride, End),
-    %% A body ahead of GVT waits until it can take at least half a stride:
-    %% it is not the one holding GVT back, and one long step costs far less
-    %% than many short ones.
+    %% A body that has passed the next sync point is not holding GVT back:
+    %% it waits until it can take at least half a stride, since one long
+    %% step costs far less than many short ones.
     MinStep = max(Dt, (Stride div 2) div Dt * Dt),
-    case Lvt < Last andalso (Last - Lvt >= MinStep orelse Last =:= End) of
+    case Lvt < Last andalso (Last - Lvt >= MinStep orelse Last =:= End orelse Lvt < next_sync(D)) of
         true -> settle(advance(Lvt, min(Last, Lvt + D#d.window * Dt), D));
         false -> {keep_state, commit_lvt(D)}
     end;
@@ -274,7 +274,10 @@ on_event(Cid, T, FromIdx, From, Effect, #d{ghosts = Ghosts, lvt = Lvt, contacts 
             %% its contact died with a state we deleted; our antievent answers it
             D#d{ghosts = Ghosts1};
         error when T > Lvt ->
-            erlang:error({event_from_the_future, T, Lvt, Cid});
+            %% our state at T was deleted after the sender found the contact,
+            %% and the sender deleted its own state first: its antievent for
+            %% this contact follows (same sender, same order), nothing to do
+            D;
         error ->
             D1 = D#d{contacts = Contacts#{T => (maps:get(T, Contacts, #{}))#{Cid => {FromIdx, Effect}}}},
             D2 = case T < Lvt of
@@ -344,6 +347,12 @@ roll_back(R, #d{idx = Idx, hist = Hist, contacts = Contacts, sim = Sim, written 
                     window = max(1, D#d.window div 2)}).
 
 %%% Commits (the GVT counter)
+
+%% The first sync point after GVT: GVT cannot advance before every body
+%% has reached it.
+next_sync(#d{gvt = G}) when G < 0 -> 0;
+next_sync(#d{gvt = G, frame_ms = F, stride = S, end_ms = End}) ->
+    min(min((G div F + 1) * F, (G div S + 1) * S), End).
 
 %% Bodies commit at every frame time and every multiple of the stride, so
 %% that GVT can always advance far enough for LVT_ub to reach the next one.
