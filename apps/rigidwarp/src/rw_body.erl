@@ -1,5 +1,6 @@
 %% One dynamic body of a Time Warp simulation (the paper's entity): a
 %% gen_statem with its own Local Virtual Time and the phases
+%%   ready    wait for the start signal (every body exists);
 %%   step     integrate ahead to LVT_ub, write the states to the TVHT, stop at
 %%            the first substep with contacts (Alg. 2, 5, 6);
 %%   resolve  wait until the events sent for those contacts are acknowledged
@@ -23,7 +24,7 @@
 -behaviour(gen_statem).
 -include("rigidwarp.hrl").
 -export([start_link/3, describe/2, lvt/1]).
--export([callback_mode/0, init/1, step/3, resolve/3, rollback/3]).
+-export([callback_mode/0, init/1, ready/3, step/3, resolve/3, rollback/3]).
 -export_type([data/0, cid/0]).
 
 %% Contact id: {LVT, lower idx, higher idx, unique}.
@@ -88,14 +89,22 @@ init({#sim{scene = #scene{model = M, substep_ms = Dt, frame_ms = F, stride_ms = 
       #sphere{idx = Idx} = Sphere, St0}) ->
     D = #d{sim = Sim, sphere = Sphere, idx = Idx, model = M, dt = Dt, frame_ms = F,
            end_ms = End, stride = Stride},
-    {ok, step, D#d{hist = #{0 => St0}}}.
+    {ok, ready, D#d{hist = #{0 => St0}}}.
 
 %%% Phases
 
 -spec step(gen_statem:event_type(), term(), #d{}) -> gen_statem:event_handler_result(atom()).
-step(info, go, #d{hist = #{0 := St0}} = D) ->
+%% Before the simulation starts: every body exists, none has written yet.
+-spec ready(gen_statem:event_type(), term(), #d{}) -> gen_statem:event_handler_result(atom()).
+ready(info, go, #d{hist = #{0 := St0}} = D) ->
     %% the initial state is written like any other, at LVT 0
     settle(write_states([{0, St0}], 0, D#d{lvt = 0}));
+ready(info, {delay, Seed, MaxMs}, D) ->
+    _ = rand:seed(exsss, Seed),
+    {keep_state, D#d{delay = MaxMs}};
+ready(_Type, _Msg, _D) ->
+    {keep_state_and_data, [postpone]}.
+
 step(timeout, step, #d{lvt = Lvt, gvt = Gvt, stride = Stride, end_ms = End, dt = Dt} = D) ->
     Last = min(max(Gvt, 0) + Stride, End),
     %% A body that has passed the next sync point is not holding GVT back:
@@ -127,9 +136,6 @@ common(info, {ack, anti, Cid}, #d{pend_anti = P} = D) ->
     settle(D#d{pend_anti = maps:remove(Cid, P)});
 common(info, {gvt, G}, D) ->
     settle(on_gvt(G, D));
-common(info, {delay, Seed, MaxMs}, D) ->
-    _ = rand:seed(exsss, Seed),
-    settle(D#d{delay = MaxMs});
 common(timeout, step, D) ->
     settle(D);
 common(Type, Msg, D) ->
