@@ -84,7 +84,7 @@ other(_Idx, {_, A, _, _}) -> A.
 -spec callback_mode() -> gen_statem:callback_mode_result().
 callback_mode() -> state_functions.
 
--spec init({#sim{}, #sphere{}, #st{}}) -> gen_statem:init_result(step).
+-spec init({#sim{}, #sphere{}, #st{}}) -> gen_statem:init_result(ready).
 init({#sim{scene = #scene{model = M, substep_ms = Dt, frame_ms = F, stride_ms = Stride}, end_ms = End} = Sim,
       #sphere{idx = Idx} = Sphere, St0}) ->
     D = #d{sim = Sim, sphere = Sphere, idx = Idx, model = M, dt = Dt, frame_ms = F,
