@@ -19,7 +19,7 @@ test: build
 
 # The first thing to try: a scene end to end with a progress line and a summary.
 run: build
-	$(ESCRIPT) run scenarios/cylinders_200.json --until 2000 --engine reference
+	$(ESCRIPT) run scenarios/bouncing_200_250.json --until 2000
 
 shell: build
 	$(REBAR) shell

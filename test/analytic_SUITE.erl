@@ -5,12 +5,12 @@
 -include_lib("stdlib/include/assert.hrl").
 -export([all/0, suite/0, init_per_suite/1, end_per_suite/1]).
 -export([elastic_pairs/1, newtons_cradle/1, ball_drop_apexes/1, projectile/1, thin_wall_ccd/1,
-         every_scenario_runs/1, few_bodies_conserve_energy/1]).
+         every_scenario_runs/1, few_bodies_conserve_energy/1, paper_scenes_behave/1]).
 
 suite() -> [{timetrap, {minutes, 5}}].
 
 all() -> [elastic_pairs, newtons_cradle, ball_drop_apexes, projectile, thin_wall_ccd, every_scenario_runs,
-          few_bodies_conserve_energy].
+          few_bodies_conserve_energy, paper_scenes_behave].
 
 init_per_suite(Config) ->
     {ok, _} = application:ensure_all_started(rigidwarp),
@@ -128,12 +128,42 @@ every_scenario_runs(_Config) ->
     ok.
 
 %% Restitution 1 and no more than pairwise contacts at a time: kinetic
-%% energy is conserved to rounding.
+%% energy is conserved to rounding. (A body touching two others in the same
+%% substep sums two impulses computed from the same pre-response velocities,
+%% which does not conserve energy: bouncing_200_250 first does so at 4.77 s,
+%% bouncing_50_250 at 4.48 s, so the windows below stay clear of that.)
 few_bodies_conserve_energy(_Config) ->
-    Frames = frames("bouncing_50_250.json", #{duration_ms => 2000},
-                    fun(M) -> M end),
     KE = fun({frame, _, Bs}) -> lists:sum([0.5 * rw_vec:len2(V) || {_, _, V, _, _} <- Bs]) end,
-    K0 = KE(hd(Frames)),
-    Drift = lists:max([abs(KE(F) - K0) / K0 || F <- Frames]),
-    ct:log("bouncing_50_250, 2 s: max relative kinetic energy drift ~.3e", [Drift]),
-    ?assert(Drift < 1.0e-9).
+    Check = fun(Name, Ms) ->
+                    Frames = frames(Name, #{duration_ms => Ms}),
+                    ?assertEqual(Ms div 10 + 1, length(Frames)),
+                    K0 = KE(hd(Frames)),
+                    Drift = lists:max([abs(KE(F) - K0) / K0 || F <- Frames]),
+                    ct:log("~s, ~b ms: max relative kinetic energy drift ~.3e", [Name, Ms, Drift]),
+                    ?assert(Drift < 1.0e-9)
+            end,
+    Check("bouncing_50_250.json", 2000),
+    Check("bouncing_200_250.json", 300).
+
+%% The paper's scenes do what they are for: Parallel never touches anything,
+%% Cylinders reaches the cylinders (the floor is first touched at 1.7 s, so
+%% fixture contacts before 1 s are cylinder contacts), Bouncing stays inside
+%% its closed box.
+paper_scenes_behave(_Config) ->
+    {ok, #{pair_contacts := 0, fixture_contacts := 0, frames := 501}} =
+        rigidwarp:run(rw_test_lib:scenario("parallel_200.json"), #{engine => reference}),
+    {ok, #{fixture_contacts := Cyl, pair_contacts := CylPairs}} =
+        rigidwarp:run(rw_test_lib:scenario("cylinders_200.json"), #{engine => reference, until => 1000}),
+    ct:log("cylinders_200 to 1 s: ~b fixture contacts, ~b pair contacts", [Cyl, CylPairs]),
+    ?assert(Cyl > 0),
+    Frames = frames("bouncing_200_100.json", #{duration_ms => 1000}),
+    Half = 2.320794,
+    Outside = [{T, Id} || {frame, T, Bs} <- Frames, {Id, {X, Y, Z}, _, _, _} <- Bs,
+                          lists:any(fun(C) -> abs(C) > Half - 0.25 + 0.01 end, [X, Y, Z])],
+    ?assertEqual([], Outside),
+    %% and the spheres did reach the walls
+    Reach = lists:max([lists:max([abs(X), abs(Y), abs(Z)]) || {frame, _, Bs} <- Frames,
+                                                              {_, {X, Y, Z}, _, _, _} <- Bs]),
+    ct:log("bouncing_200_100 to 1 s: farthest centre coordinate ~.4f (wall contact at ~.4f)",
+           [Reach, Half - 0.25]),
+    ?assert(Reach > Half - 0.25 - 0.01).
