@@ -62,6 +62,7 @@ assert_same(Name, Expected, Actual) ->
             ct:fail({not_equal, Name})
     end.
 
+first_diff(A, Failure) when not is_list(Failure) -> {expected, length(A), frames, got, Failure};
 first_diff([X | A], [X | B]) -> first_diff(A, B);
 first_diff([X | _], [Y | _]) -> {expected, X, got, Y};
 first_diff(A, B) -> {length, length(A), length(B)}.
@@ -115,16 +116,21 @@ random_scenes_equal(_Config) ->
                        {error, _} ->
                            true;   % the generator can ask for a packing that cannot be placed
                        {ok, Scene} ->
-                           {Ref, _} = frames(reference, Scene, #{}),
-                           Tw = try with_schedulers(Sched, fun() -> frames(timewarp, Scene, #{buckets => Buckets}) end) of
-                                    {Frames, _} -> Frames
-                                catch C:E -> {C, E}
-                                end,
-                           ?WHENFAIL(ct:pal("scene ~p~nstride ~p, ~p buckets, ~p schedulers~nfirst diff ~p",
-                                            [SceneMap, Stride, Buckets, Sched, first_diff(Ref, Tw)]),
-                                     Ref =:= Tw)
+                           same_as_reference(Scene, Sched, #{buckets => Buckets},
+                                             io_lib:format("scene ~p~nstride ~p, ~p buckets, ~p schedulers",
+                                                           [SceneMap, Stride, Buckets, Sched]))
                    end),
     true = proper:quickcheck(Prop, [{numtests, 100}, {to_file, user}, long_result]).
+
+%% A property: the Time Warp frames of Scene equal the reference's; on
+%% failure print What and the first difference (or the exception).
+same_as_reference(Scene, Sched, Opts, What) ->
+    {Ref, _} = frames(reference, Scene, #{}),
+    Tw = try with_schedulers(Sched, fun() -> frames(timewarp, Scene, Opts) end) of
+             {Frames, _} -> Frames
+         catch C:E -> {C, E}
+         end,
+    ?WHENFAIL(ct:pal("~s~nfirst diff ~p", [What, first_diff(Ref, Tw)]), Ref =:= Tw).
 
 stride() -> oneof([1, 2, 8, 64, 256]).
 buckets() -> oneof([1, 3, 16, 64]).
@@ -186,14 +192,9 @@ random_delays_terminate_and_equal(_Config) ->
                                                     <<"duration_ms">> => 60 * maps:get(<<"substep_ms">>, SceneMap)}, #{}) of
                        {error, _} -> true;
                        {ok, Scene} ->
-                           {Ref, _} = frames(reference, Scene, #{}),
-                           Tw = try frames(timewarp, Scene, #{delay => {Seed, MaxMs}, buckets => 4}) of
-                                    {Frames, _} -> Frames
-                                catch C:E -> {C, E}
-                                end,
-                           ?WHENFAIL(ct:pal("scene ~p~nstride ~p, delay seed ~p up to ~p ms~nfirst diff ~p",
-                                            [SceneMap, Stride, Seed, MaxMs, first_diff(Ref, Tw)]),
-                                     Ref =:= Tw)
+                           same_as_reference(Scene, 2, #{delay => {Seed, MaxMs}, buckets => 4},
+                                             io_lib:format("scene ~p~nstride ~p, delay seed ~p up to ~p ms",
+                                                           [SceneMap, Stride, Seed, MaxMs]))
                    end),
     true = proper:quickcheck(Prop, [{numtests, 40}, {to_file, user}, long_result]).
 
