@@ -40,6 +40,10 @@ main(Args) ->
                throw:{bad_input, Msg} ->
                    io:format(standard_error, "rigidwarp: ~ts~n", [Msg]),
                    2;
+               error:terminated ->
+                   %% stdout was closed (`rigidwarp scenes | head`): stop quietly,
+                   %% with the exit status of a process killed by SIGPIPE
+                   141;
                Class:Reason:Stack ->
                    io:format(standard_error, "rigidwarp: internal error: ~p:~p~n~p~n", [Class, Reason, Stack]),
                    1
