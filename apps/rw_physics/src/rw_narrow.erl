@@ -182,7 +182,9 @@ cylinder(P, R, C, Axis, CR, H) ->
             Cap = H - abs(H0),
             case Side < Cap of
                 true ->
-                    N = case RL > 0.0 of
+                    %% on a tilted axis the radial offset of a centre on the axis is
+                    %% rounding noise: treat it as on the axis
+                    N = case RL > 1.0e-12 * max(rw_vec:len(Rel), CR) of
                             true -> rw_vec:scale(Radial, -1.0 / RL);
                             false -> any_perpendicular(Axis)
                         end,

@@ -1,29 +1,50 @@
-%% Runs the physics properties (rw_physics_prop) from common_test.
+%% Runs the physics properties (rw_physics_prop) from common_test: one case
+%% per prop_*/0, failing with the shrunk counterexample.
 -module(rw_physics_prop_SUITE).
 -include_lib("common_test/include/ct.hrl").
--export([all/0, suite/0]).
--export([pair_conserves_momentum/1, pair_energy/1, pair_symmetric_and_repeatable/1, angular_momentum/1,
-         hash_covers_aabb/1, normals_unit/1, degenerate_input/1, quat_unit/1, free_flight/1,
-         respond_is_ordered_sum/1]).
+-export([all/0, suite/0, end_per_testcase/2]).
+-export([pair_momentum/1, pair_angular_momentum/1, pair_energy/1, fixture_energy/1, restitution_law/1,
+         friction_coulomb/1, pair_symmetric_and_repeatable/1, hash_covers_aabb/1, normals_unit/1,
+         depth_along_normal/1, cylinder_depth_along_normal/1, swept_toi/1, degenerate_input/1,
+         quat_integrate/1, free_flight/1, respond_is_ordered_fold/1]).
+
+%% Tests per property; the whole suite takes a few seconds.
+-define(NUMTESTS, 1000).
 
 suite() -> [{timetrap, {minutes, 3}}].
 
-all() -> [pair_conserves_momentum, pair_energy, pair_symmetric_and_repeatable, angular_momentum,
-          hash_covers_aabb, normals_unit, degenerate_input, quat_unit, free_flight, respond_is_ordered_sum].
+all() -> [pair_momentum, pair_angular_momentum, pair_energy, fixture_energy, restitution_law, friction_coulomb,
+          pair_symmetric_and_repeatable, hash_covers_aabb, normals_unit, depth_along_normal,
+          cylinder_depth_along_normal, swept_toi, degenerate_input, quat_integrate, free_flight,
+          respond_is_ordered_fold].
 
-check(Prop) ->
-    case proper:quickcheck(rw_physics_prop:Prop(), [{numtests, 1000}, {to_file, user}, long_result]) of
-        true -> ok;
-        Failure -> ct:fail({property_failed, Prop, Failure})
+end_per_testcase(_Case, _Config) ->
+    proper:global_state_erase(),
+    ok.
+
+check(Name) ->
+    Prop = list_to_atom("prop_" ++ atom_to_list(Name)),
+    case proper:quickcheck(rw_physics_prop:Prop(), [{numtests, ?NUMTESTS}, {to_file, user}, long_result]) of
+        true ->
+            ok;
+        Counterexample ->
+            ct:pal("~p failed; counterexample:~n~p", [Prop, Counterexample]),
+            ct:fail({Prop, Counterexample})
     end.
 
-pair_conserves_momentum(_) -> check(prop_pair_conserves_momentum).
-pair_energy(_) -> check(prop_pair_energy).
-pair_symmetric_and_repeatable(_) -> check(prop_pair_symmetric_and_repeatable).
-angular_momentum(_) -> check(prop_angular_momentum).
-hash_covers_aabb(_) -> check(prop_hash_covers_aabb).
-normals_unit(_) -> check(prop_normals_unit).
-degenerate_input(_) -> check(prop_degenerate_input).
-quat_unit(_) -> check(prop_quat_unit).
-free_flight(_) -> check(prop_free_flight).
-respond_is_ordered_sum(_) -> check(prop_respond_is_ordered_sum).
+pair_momentum(_) -> check(pair_momentum).
+pair_angular_momentum(_) -> check(pair_angular_momentum).
+pair_energy(_) -> check(pair_energy).
+fixture_energy(_) -> check(fixture_energy).
+restitution_law(_) -> check(restitution_law).
+friction_coulomb(_) -> check(friction_coulomb).
+pair_symmetric_and_repeatable(_) -> check(pair_symmetric_and_repeatable).
+hash_covers_aabb(_) -> check(hash_covers_aabb).
+normals_unit(_) -> check(normals_unit).
+depth_along_normal(_) -> check(depth_along_normal).
+cylinder_depth_along_normal(_) -> check(cylinder_depth_along_normal).
+swept_toi(_) -> check(swept_toi).
+degenerate_input(_) -> check(degenerate_input).
+quat_integrate(_) -> check(quat_integrate).
+free_flight(_) -> check(free_flight).
+respond_is_ordered_fold(_) -> check(respond_is_ordered_fold).
