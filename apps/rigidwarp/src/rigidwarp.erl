@@ -174,10 +174,9 @@ summary(#scene{name = Name, substep_ms = Dt, stride_ms = Stride, spheres = Spher
 
 check_options(Opts) when is_map(Opts) ->
     Bad = [K || K <- maps:keys(Opts), not lists:member(K, ?OPTION_KEYS)],
-    Checks = [{K, V} || {K, V} <- maps:to_list(Opts)],
     case Bad of
         [K | _] -> {error, lists:flatten(io_lib:format("unknown option ~p (known: ~p)", [K, ?OPTION_KEYS]))};
-        [] -> check_values(Checks)
+        [] -> check_values(maps:to_list(Opts))
     end;
 check_options(Opts) ->
     {error, lists:flatten(io_lib:format("options must be a map, got ~p", [Opts]))}.

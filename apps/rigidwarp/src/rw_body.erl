@@ -356,9 +356,7 @@ roll_back(R, #d{idx = Idx, hist = Hist, contacts = Contacts, sim = Sim, written 
 
 %% The first sync point after GVT: GVT cannot advance before every body
 %% has reached it.
-next_sync(#d{gvt = G}) when G < 0 -> 0;
-next_sync(#d{gvt = G, frame_ms = F, stride = S, end_ms = End}) ->
-    min(min((G div F + 1) * F, (G div S + 1) * S), End).
+next_sync(#d{gvt = G, frame_ms = F, stride = S, end_ms = End}) -> rw_gvt:sync_after(G, F, S, End).
 
 %% Bodies commit at every frame time and every multiple of the stride, so
 %% that GVT can always advance far enough for LVT_ub to reach the next one.

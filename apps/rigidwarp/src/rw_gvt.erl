@@ -10,7 +10,7 @@
 -module(rw_gvt).
 -behaviour(gen_server).
 -include("rigidwarp.hrl").
--export([start_link/0, go/4, subscribe/2, latest/1, frame_at/2, gvt/1]).
+-export([start_link/0, go/4, subscribe/2, latest/1, frame_at/2, gvt/1, sync_after/4]).
 -export([init/1, handle_call/3, handle_cast/2, handle_info/2]).
 
 -record(s, {
@@ -95,11 +95,14 @@ handle_info(Msg, S) ->
 
 %% GVT advances through the sync points: frame times, multiples of the
 %% stride, and the end time. Frames are written at frame times only.
-next_sync(#s{gvt = -1}) -> 0;
 next_sync(#s{gvt = G, sim = #sim{scene = #scene{frame_ms = F, stride_ms = S}, end_ms = End}}) ->
-    min(min(next_multiple(G, F), next_multiple(G, S)), End).
+    sync_after(G, F, S, End).
 
-next_multiple(G, X) -> (G div X + 1) * X.
+%% The first sync point after G (G < 0: before the first frame). Bodies use
+%% it too: GVT cannot pass it before every body has reached it.
+-spec sync_after(integer(), pos_integer(), pos_integer(), non_neg_integer()) -> non_neg_integer().
+sync_after(G, _F, _S, _End) when G < 0 -> 0;
+sync_after(G, F, S, End) -> min(min((G div F + 1) * F, (G div S + 1) * S), End).
 
 is_frame(T, #sim{scene = #scene{frame_ms = F}, end_ms = End}) -> T rem F =:= 0 orelse T =:= End.
 
