@@ -54,6 +54,11 @@
     gc_at = 0 :: non_neg_integer(),            % next GVT at which to prune history
     %% where each write went: {T0, UpTo, [{BucketIndex, Pid, Cells}]}, newest first
     written = [] :: [{non_neg_integer(), non_neg_integer(), [{non_neg_integer(), pid(), [rw_hash:cell()]}]}],
+    %% bodies touched recently, for the neighbour rule (see step/3)
+    partners = #{} :: #{non_neg_integer() => pid()},
+    %% bodies waiting for this one to reach an LVT: Pid => LVT
+    watchers = #{} :: #{pid() => non_neg_integer()},
+    watching = none :: none | {non_neg_integer(), non_neg_integer()},
     delay = 0 :: non_neg_integer()              % test hook: max pause (ms) before TVHT work
 }).
 -opaque data() :: #d{}.
@@ -112,7 +117,28 @@ step(timeout, step, #d{lvt = Lvt, gvt = Gvt, stride = Stride, end_ms = End, dt =
     %% step costs far less than many short ones.
     MinStep = max(Dt, (Stride div 2) div Dt * Dt),
     case Lvt < Last andalso (Last - Lvt >= MinStep orelse Last =:= End orelse Lvt < next_sync(D)) of
-        true -> settle(advance(Lvt, min(Last, Lvt + D#d.window * Dt), D));
+        true ->
+            %% Neighbour rule: a body that touched another one in the last
+            %% few substeps goes at most one substep past it. Beyond that it
+            %% could not see their next contact, and would be rolled back
+            %% when the other body finds it. The body with the lowest LVT is
+            %% never held, so some body can always move.
+            %% A partner publishes its LVT only after sending the events of
+            %% its write, so the events behind the limit read here are in
+            %% our mailbox already: take them in before stepping.
+            Limit = neighbour_limit(D),
+            case drain(D, false) of
+                {true, D1} ->
+                    settle(D1);
+                {false, _} ->
+                    case Limit of
+                        {L, PIdx, PPid} when L =< Lvt ->
+                            {keep_state, watch(PIdx, PPid, commit_lvt(D))};
+                        _ ->
+                            To = case Limit of none -> Last; {L, _, _} -> min(Last, L) end,
+                            settle(advance(Lvt, min(To, Lvt + D#d.window * Dt), D#d{watching = none}))
+                    end
+            end;
         false -> {keep_state, commit_lvt(D)}
     end;
 step(Type, Msg, D) ->
@@ -126,25 +152,84 @@ rollback(Type, Msg, D) -> common(Type, Msg, D).
 
 %% Messages every phase handles; the phase that follows is derived from
 %% what is still awaited.
-common(info, {event, Cid, T, FromIdx, From, Effect}, D) ->
-    settle(on_event(Cid, T, FromIdx, From, Effect, D));
-common(info, {antievent, Cid, T, From}, D) ->
-    settle(on_antievent(Cid, T, From, D));
-common(info, {ack, event, Cid}, #d{pend_ev = P} = D) ->
-    settle(D#d{pend_ev = maps:remove(Cid, P)});
-common(info, {ack, anti, Cid}, #d{pend_anti = P} = D) ->
-    settle(D#d{pend_anti = maps:remove(Cid, P)});
-common(info, {gvt, G}, D) ->
-    settle(on_gvt(G, D));
+common(info, {event, _, _, _, _, _} = Msg, D) -> settle(on_message(Msg, D));
+common(info, {antievent, _, _, _} = Msg, D) -> settle(on_message(Msg, D));
+common(info, {ack, _, _} = Msg, D) -> settle(on_message(Msg, D));
+common(info, {gvt, _} = Msg, D) -> settle(on_message(Msg, D));
+common(info, {watch, _, _} = Msg, D) -> settle(on_message(Msg, D));
+common(info, {reached, _, _} = Msg, D) -> settle(on_message(Msg, D));
 common(timeout, step, D) ->
     settle(D);
 common(Type, Msg, D) ->
     logger:warning("rw_body ~p: unexpected ~p ~p", [D#d.idx, Type, Msg]),
     keep_state_and_data.
 
+on_message({event, Cid, T, FromIdx, From, Effect}, D) -> on_event(Cid, T, FromIdx, From, Effect, D);
+on_message({antievent, Cid, T, From}, D) -> on_antievent(Cid, T, From, D);
+on_message({ack, event, Cid}, #d{pend_ev = P} = D) -> D#d{pend_ev = maps:remove(Cid, P)};
+on_message({ack, anti, Cid}, #d{pend_anti = P} = D) -> D#d{pend_anti = maps:remove(Cid, P)};
+on_message({gvt, G}, D) -> on_gvt(G, D);
+on_message({watch, Pid, T}, D) -> on_watch(Pid, T, D);
+on_message({reached, _Idx, _T}, D) -> D#d{watching = none}.
+
+%% Take in every protocol message already in the mailbox (a timeout-0
+%% step would otherwise run before them); true if there was any.
+drain(D, Any) ->
+    receive
+        {event, _, _, _, _, _} = Msg -> drain(on_message(Msg, D), true);
+        {antievent, _, _, _} = Msg -> drain(on_message(Msg, D), true);
+        {ack, _, _} = Msg -> drain(on_message(Msg, D), true);
+        {gvt, _} = Msg -> drain(on_message(Msg, D), true);
+        {watch, _, _} = Msg -> drain(on_message(Msg, D), true);
+        {reached, _, _} = Msg -> drain(on_message(Msg, D), true)
+    after 0 -> {Any, D}
+    end.
+
 settle(#d{pend_anti = PA} = D) when map_size(PA) > 0 -> {next_state, rollback, D};
 settle(#d{pend_ev = PE} = D) when map_size(PE) > 0 -> {next_state, resolve, D};
 settle(D) -> {next_state, step, D, [{timeout, 0, step}]}.
+
+%%% Neighbour rule
+
+-define(RECENT_SUBSTEPS, 8).
+
+%% {Limit, Idx, Pid}: how far the slowest body touched in the last few
+%% substeps lets this one go (its LVT plus one substep), or none.
+neighbour_limit(#d{lvt = Lvt, dt = Dt, contacts = Contacts, partners = Partners, sim = #sim{lvts = Lvts}}) ->
+    Recent = lists:usort([PIdx || K <- lists:seq(0, ?RECENT_SUBSTEPS - 1), T <- [Lvt - K * Dt], T >= 0,
+                                  {PIdx, _} <- maps:values(maps:get(T, Contacts, #{}))]),
+    lists:foldl(fun(PIdx, Best) ->
+                        L = atomics:get(Lvts, PIdx + 1) + Dt,
+                        case Best of
+                            {BL, _, _} when BL =< L -> Best;
+                            _ -> {L, PIdx, maps:get(PIdx, Partners)}
+                        end
+                end, none, Recent).
+
+%% Ask PIdx to tell us when it reaches our LVT (once per wait).
+watch(PIdx, _PPid, #d{lvt = Lvt, watching = {PIdx, Lvt}} = D) -> D;
+watch(PIdx, PPid, #d{lvt = Lvt} = D) ->
+    send(PPid, {watch, self(), Lvt}, D),
+    D#d{watching = {PIdx, Lvt}}.
+
+on_watch(Pid, T, #d{lvt = Lvt, idx = Idx} = D) when Lvt >= T ->
+    Pid ! {reached, Idx, Lvt},
+    D;
+on_watch(Pid, T, #d{watchers = W} = D) ->
+    D#d{watchers = W#{Pid => T}}.
+
+%% Publish the LVT; wake the bodies waiting for it.
+publish_lvt(#d{sim = #sim{lvts = Lvts}, idx = Idx, lvt = Lvt, watchers = W} = D) ->
+    atomics:put(Lvts, Idx + 1, Lvt),
+    case map_size(W) of
+        0 -> D;
+        _ ->
+            {Due, Later} = maps:fold(fun(Pid, T, {Du, La}) when T =< Lvt -> {[Pid | Du], La};
+                                        (Pid, T, {Du, La}) -> {Du, La#{Pid => T}}
+                                     end, {[], #{}}, W),
+            _ = [Pid ! {reached, Idx, Lvt} || Pid <- Due],
+            D#d{watchers = Later}
+    end.
 
 %%% Step: integrate from LVT to Last assuming no new contacts, write
 
@@ -212,7 +297,7 @@ write_states([{T0, _} | _] = States, Last,
                  _ -> min(MaxWindow, max(1, 2 * ((UpTo - T0) div D#d.dt + 1)))
              end,
     D1 = D#d{hist = Hist1, lvt = UpTo, written = [{T0, UpTo, Where} | Written], window = Window},
-    send_events(UpTo, Hits, Ids, D1).
+    publish_lvt(send_events(UpTo, Hits, Ids, D1)).
 
 %% For each cell touched during the step, the first and last substep at
 %% which the body's box (swept with CCD) touches it. Boxes seldom change
@@ -268,7 +353,8 @@ send_events(T, Hits, Ids, #d{idx = Idx, sphere = S, model = M, hist = Hist, cont
                              {Acc#{Cid => {OIdx, Own}}, P#{Cid => true}}
                      end, {maps:get(T, Contacts, #{}), D#d.pend_ev}, Hits),
     counters:add(D#d.sim#sim.stats, ?ST_EVENTS, length(Hits)),
-    D#d{contacts = Contacts#{T => Mine}, pend_ev = Pend}.
+    Partners = maps:merge(D#d.partners, maps:from_list([{OIdx, OPid} || {OIdx, {{_, OPid, _, _, _}, _}} <- Hits])),
+    D#d{contacts = Contacts#{T => Mine}, pend_ev = Pend, partners = Partners}.
 
 swap({A, B}) -> {B, A}.
 
@@ -285,7 +371,8 @@ on_event(Cid, T, FromIdx, From, Effect, #d{ghosts = Ghosts, lvt = Lvt, contacts 
             %% this contact follows (same sender, same order), nothing to do
             D;
         error ->
-            D1 = D#d{contacts = Contacts#{T => (maps:get(T, Contacts, #{}))#{Cid => {FromIdx, Effect}}}},
+            D1 = D#d{contacts = Contacts#{T => (maps:get(T, Contacts, #{}))#{Cid => {FromIdx, Effect}}},
+                     partners = (D#d.partners)#{FromIdx => From}},
             D2 = case T < Lvt of
                      true -> counters:add(D#d.sim#sim.stats, ?ST_PRIMARY, 1),
                              roll_back(T, D1);
@@ -348,9 +435,9 @@ roll_back(R, #d{idx = Idx, hist = Hist, contacts = Contacts, sim = Sim, written 
           end, {D#d.pend_anti, D#d.ghosts}, Lost),
     counters:add(Sim#sim.stats, ?ST_ANTIEVENTS, map_size(PendAnti) - map_size(D#d.pend_anti)),
     Keep = fun(T, _) -> T =< R end,
-    withdraw(R, D#d{lvt = R, hist = maps:filter(Keep, Hist), contacts = maps:filter(Keep, Contacts),
+    withdraw(R, publish_lvt(D#d{lvt = R, hist = maps:filter(Keep, Hist), contacts = maps:filter(Keep, Contacts),
                     pend_ev = #{}, pend_anti = PendAnti, ghosts = Ghosts, written = Written1,
-                    window = max(1, D#d.window div 2)}).
+                    window = max(1, D#d.window div 2)})).
 
 %%% Commits (the GVT counter)
 

@@ -148,11 +148,10 @@ notify(Pid, Msg) -> Pid ! Msg, ok.
 %% Who waits on whom: each body's phase, LVT, what it awaits and how many
 %% messages it has not read yet, the bodies holding GVT back first.
 diagnose(#s{bodies = Bodies}) ->
-    Lines = [case catch sys:get_state(B, 500) of
-                 {Phase, D} when is_atom(Phase) ->
-                     {rw_body:lvt(D), [rw_body:describe(Phase, D), queue(B)]};
-                 _ ->
-                     {-1, io_lib:format("~p: not answering (blocked in a bucket call?)~ts", [B, queue(B)])}
+    Lines = [try sys:get_state(B, 500) of
+                 {Phase, D} -> {rw_body:lvt(D), [rw_body:describe(Phase, D), queue(B)]}
+             catch
+                 exit:_ -> {-1, io_lib:format("~p: not answering (blocked in a bucket call?)~ts", [B, queue(B)])}
              end || B <- Bodies],
     lists:flatten(["bodies by LVT, lowest (holding GVT back) first:\n"
                    | [[L, $\n] || {_, L} <- lists:keysort(1, Lines)]]).

@@ -31,7 +31,8 @@ start(#scene{spheres = Spheres, initial = Initial, duration_ms = End} = Scene, O
             #{records := Records, counts := Counts, ring := Ring} = rw_sim_tables:tables(TablesPid),
             Sim = #sim{scene = Scene, n = length(Spheres), end_ms = End, buckets = Buckets, gvt = Gvt,
                        records = Records, counts = Counts, ring = Ring,
-                       stats = counters:new(length(?STAT_NAMES), [write_concurrency])},
+                       stats = counters:new(length(?STAT_NAMES), [write_concurrency]),
+                       lvts = atomics:new(lists:max([1 | [I + 1 || #sphere{idx = I} <- Spheres]]), [{signed, false}])},
             Bodies = [begin
                           {ok, Pid} = supervisor:start_child(BodySup, [Sim, Sphere, St]),
                           Pid
