@@ -37,7 +37,10 @@
     dt :: pos_integer(),                     % substep, ms
     locks = #{} :: #{rw_hash:cell() => pid()},
     waiting = [] :: [{gen_server:from(), pid(), [rw_hash:cell()], term()}],
-    cells = #{} :: #{rw_hash:cell() => [seg()]},
+    %% per cell, per body, that body's segments newest first: a body writes
+    %% forward in time and a rollback cuts the newest ones, so each list is
+    %% sorted and a probe near the present reads only its head
+    cells = #{} :: #{rw_hash:cell() => #{non_neg_integer() => [seg()]}},
     %% contacts reported from this bucket, by body: [{T, Cid}]
     by_body = #{} :: #{non_neg_integer() => [{non_neg_integer(), cid()}]},
     contacts = #{} :: #{cid() => {Detector :: pid(), Other :: pid()}},
@@ -97,9 +100,15 @@ handle_cast({unlock, Owner}, S) ->
 handle_cast({gvt, Gvt}, #state{gc_at = At} = S) when Gvt < At ->
     {noreply, S};
 handle_cast({gvt, Gvt}, #state{cells = Cells, by_body = By, contacts = C, dt = Dt} = S) ->
-    Cells1 = maps:filtermap(fun(_, Segs) ->
-                                    case [Seg || {_, Tb, _} = Seg <- Segs, Tb >= Gvt] of
-                                        [] -> false;
+    Recent = fun(_, Segs) ->
+                     case lists:takewhile(fun({_, Tb, _}) -> Tb >= Gvt end, Segs) of
+                         [] -> false;
+                         Kept -> {true, Kept}
+                     end
+             end,
+    Cells1 = maps:filtermap(fun(_, ByIdx) ->
+                                    case maps:filtermap(Recent, ByIdx) of
+                                        Empty when map_size(Empty) =:= 0 -> false;
                                         Kept -> {true, Kept}
                                     end
                             end, Cells),
@@ -160,21 +169,27 @@ probe({Idx, _, _, _, _, _} = Mine, Spans, #state{cells = Cells} = S) ->
     lists:foldl(
       fun({Cell, Ta, Tb}, Best) ->
               case Cells of
-                  #{Cell := Segs} -> probe_segs(Segs, Idx, Ta, Tb, Mine, Best, S);
+                  #{Cell := ByIdx} ->
+                      maps:fold(fun(OIdx, _, B) when OIdx =:= Idx -> B;
+                                   (_, Segs, B) -> probe_segs(Segs, Ta, Tb, Mine, B, S)
+                                end, Best, ByIdx);
                   _ -> Best
               end
       end, none, Spans).
 
-probe_segs([], _Idx, _Ta, _Tb, _Mine, Best, _S) -> Best;
-probe_segs([{OTa, OTb, Other} | Rest], Idx, Ta, Tb, Mine, Best, S) ->
+%% One other body's segments in a cell, newest first: skip those after the
+%% window, stop at the first one before it.
+probe_segs([], _Ta, _Tb, _Mine, Best, _S) -> Best;
+probe_segs([{_, OTb, _} | _], Ta, _Tb, _Mine, Best, _S) when OTb < Ta -> Best;
+probe_segs([{OTa, OTb, Other} | Rest], Ta, Tb, Mine, Best, S) ->
     Lo = max(Ta, OTa),
     Hi = case Best of
              none -> min(Tb, OTb);
              {BT, _} -> min(BT, min(Tb, OTb))
          end,
-    case Lo =< Hi andalso element(1, Other) =/= Idx of
-        true -> probe_segs(Rest, Idx, Ta, Tb, Mine, scan(Lo, Hi, Mine, Other, Best, S), S);
-        false -> probe_segs(Rest, Idx, Ta, Tb, Mine, Best, S)
+    case Lo =< Hi of
+        true -> probe_segs(Rest, Ta, Tb, Mine, scan(Lo, Hi, Mine, Other, Best, S), S);
+        false -> probe_segs(Rest, Ta, Tb, Mine, Best, S)
     end.
 
 %% First LVT in [Lo, Hi] at which the two bodies touch. Without CCD the
@@ -239,7 +254,12 @@ narrow(#model{ccd = true}, {_, _, #sphere{radius = RA}, #st{p = PA}, DA},
 commit(Owner, UpTo, Ids, #state{probes = Probes, cells = Cells} = S) ->
     {{{Idx, _, _, _, _, _} = Payload, Spans, Result}, Probes1} = maps:take(Owner, Probes),
     Cells1 = lists:foldl(fun({Cell, Ta, Tb}, Acc) when Ta =< UpTo ->
-                                 Acc#{Cell => [{Ta, min(Tb, UpTo), Payload} | maps:get(Cell, Acc, [])]};
+                                 Seg = {Ta, min(Tb, UpTo), Payload},
+                                 case Acc of
+                                     #{Cell := #{Idx := Segs} = ByIdx} -> Acc#{Cell := ByIdx#{Idx := [Seg | Segs]}};
+                                     #{Cell := ByIdx} -> Acc#{Cell := ByIdx#{Idx => [Seg]}};
+                                     _ -> Acc#{Cell => #{Idx => [Seg]}}
+                                 end;
                             (_, Acc) -> Acc
                          end, Cells, Spans),
     S1 = S#state{probes = Probes1, cells = Cells1},
@@ -260,13 +280,14 @@ record(Cid, T, Idx, Detector, OIdx, Other, #state{by_body = By, contacts = C} = 
 delete(Idx, R, Owned, #state{cells = Cells, by_body = By, contacts = C} = S) ->
     Cells1 = lists:foldl(
                fun(Cell, Acc) ->
-                       case maps:find(Cell, Acc) of
-                           error -> Acc;
-                           {ok, Segs} ->
-                               case truncate(Segs, Idx, R) of
-                                   [] -> maps:remove(Cell, Acc);
-                                   Kept -> Acc#{Cell => Kept}
-                               end
+                       case Acc of
+                           #{Cell := #{Idx := Segs} = ByIdx} ->
+                               case truncate(Segs, R) of
+                                   [] when map_size(ByIdx) =:= 1 -> maps:remove(Cell, Acc);
+                                   [] -> Acc#{Cell := maps:remove(Idx, ByIdx)};
+                                   Kept -> Acc#{Cell := ByIdx#{Idx := Kept}}
+                               end;
+                           _ -> Acc
                        end
                end, Cells, Owned),
     {Gone, Kept} = lists:partition(fun({T, _}) -> T > R end, maps:get(Idx, By, [])),
@@ -274,9 +295,7 @@ delete(Idx, R, Owned, #state{cells = Cells, by_body = By, contacts = C} = S) ->
     Lost = [{Cid, D, O} || {_, Cid} <- Gone, {D, O} <- [maps:get(Cid, C, none)]],
     {Lost, S#state{cells = Cells1, by_body = By1, contacts = maps:without([Cid || {_, Cid} <- Gone], C)}}.
 
-%% Body Idx's segments end at R at the latest.
-truncate(Segs, Idx, R) ->
-    [case Seg of
-         {Ta, Tb, {Idx, _, _, _, _, _} = P} when Tb > R -> {Ta, R, P};
-         _ -> Seg
-     end || {Ta, _, P} = Seg <- Segs, not (element(1, P) =:= Idx andalso Ta > R)].
+%% A body's segments (newest first) end at R at the latest.
+truncate([{Ta, _, _} | Rest], R) when Ta > R -> truncate(Rest, R);
+truncate([{Ta, Tb, P} | Rest], R) when Tb > R -> [{Ta, R, P} | Rest];
+truncate(Segs, _R) -> Segs.
