@@ -2,7 +2,7 @@
 REBAR ?= rebar3
 ESCRIPT = _build/default/bin/rigidwarp
 
-.PHONY: all deps build test run shell clean
+.PHONY: all deps build test viewer-test run shell clean
 
 all: build
 
@@ -16,6 +16,10 @@ build: deps
 # eunit + PropEr + common_test + xref + dialyzer, then one closing count line.
 test: build
 	@scripts/run-tests
+
+# The browser viewer in headless chromium (installs chromium and npm packages).
+viewer-test: build
+	@scripts/viewer-test
 
 # The first thing to try: a scene end to end with a progress line and a summary.
 run: build

@@ -4,8 +4,8 @@
 %%   {ok, #{scene => <<"head_on_elastic">>, realtime_factor => ..., ...}}
 -module(rigidwarp).
 -include("rigidwarp.hrl").
--export([run/2, run_scene/2, load/2, help/0, start/2, stop/1, frames/1, frames/2, subscribe/1,
-         await/2, gvt/1]).
+-export([run/2, run_scene/2, load/2, help/0, start/2, stop/1, frames/1, frames/2, frames_after/3,
+         subscribe/1, await/2, gvt/1, stats/1, view/1, view/2]).
 -export_type([run_options/0, summary/0]).
 
 -type run_options() :: #{engine => timewarp | reference,
@@ -14,14 +14,15 @@
                          until => pos_integer(), substep => pos_integer(),
                          stride => pos_integer(), frame_ms => pos_integer(),
                          frames => file:filename(),
-                         on_frame => fun((rw_reference:frame()) -> any())}.
+                         on_frame => fun((rw_reference:frame()) -> any()),
+                         on_progress => fun((map()) -> any())}.
 -type summary() :: #{atom() => term()}.
 %% A running Time Warp simulation (from start/2).
 -opaque sim() :: rw_timewarp:handle().
 -export_type([sim/0]).
 
--define(OPTION_KEYS, [engine, until, substep, stride, frame_ms, frames, on_frame, buckets, schedulers,
-                      watchdog_ms]).
+-define(OPTION_KEYS, [engine, until, substep, stride, frame_ms, frames, on_frame, on_progress, buckets,
+                      schedulers, watchdog_ms]).
 
 -spec help() -> ok.
 help() ->
@@ -35,6 +36,8 @@ help() ->
       "  rigidwarp:frames(Sim)           the latest committed frame\n"
       "  rigidwarp:frames(Sim, T)        the committed frame at T ms (while in the ring)\n"
       "  rigidwarp:gvt(Sim)              Global Virtual Time (ms of the latest frame)\n"
+      "  rigidwarp:stats(Sim)            GVT, realtime factor, events, rollbacks... while it runs\n"
+      "  rigidwarp:view(Sim)             serve the live 3D viewer: {ok, Url}\n"
       "  rigidwarp:subscribe(Sim)        receive {rw_frame, _, Frame} for every new frame\n"
       "  rigidwarp:await(Sim, TimeoutMs) wait for the run to reach its end time\n"
       "  rigidwarp:stop(Sim)             stop it; no process or table is left behind\n"),
@@ -68,6 +71,28 @@ frames(Sim) -> frames(Sim, latest).
 -spec frames(sim(), latest | non_neg_integer()) -> rw_reference:frame() | none.
 frames(#{ring := Ring}, latest) -> rw_gvt:latest(Ring);
 frames(#{ring := Ring}, T) when is_integer(T), T >= 0 -> rw_gvt:frame_at(Ring, T).
+
+%% Up to Max committed frames after T ms that are still in the ring.
+-spec frames_after(sim(), integer(), pos_integer()) -> [rw_reference:frame()].
+frames_after(#{ring := Ring}, T, Max) when is_integer(T), is_integer(Max), Max > 0 ->
+    rw_gvt:frames_after(Ring, T, Max).
+
+%% Counters of a running (or finished, not yet stopped) simulation.
+-spec stats(sim()) -> map().
+stats(#{gvt := Gvt} = Sim) -> rw_timewarp:progress(Sim, rw_gvt:gvt(Gvt)).
+
+%% Serve the live viewer for Sim on 127.0.0.1 (port 8765 unless Opts say
+%% otherwise); open the returned URL in a browser.
+-spec view(sim()) -> {ok, string()} | {error, string()}.
+view(Sim) -> view(Sim, #{}).
+
+-spec view(sim(), #{port => inet:port_number()}) -> {ok, string()} | {error, string()}.
+view(#{ring := _} = Sim, Opts) when is_map(Opts) ->
+    ok = rw_viewer:prepare(),
+    case rw_viewer:start({live, Sim}, maps:with([port], Opts)) of
+        {ok, Server} -> {ok, rw_viewer:url(Server)};
+        {error, _} = Error -> Error
+    end.
 
 -spec gvt(sim()) -> integer().
 gvt(#{gvt := Gvt}) -> rw_gvt:gvt(Gvt).
@@ -131,11 +156,21 @@ run_scene(Scene, Opts) ->
             Error
     end.
 
-run_engine(reference, Scene, Sink, _Opts) ->
-    rw_reference:run(Scene, #{on_frame => Sink});
+run_engine(reference, #scene{duration_ms = End} = Scene, Sink, Opts) ->
+    OnFrame = case maps:find(on_progress, Opts) of
+                  {ok, P} ->
+                      T0 = erlang:monotonic_time(millisecond),
+                      fun({frame, T, _} = F) ->
+                              Sink(F),
+                              Wall = max(1, erlang:monotonic_time(millisecond) - T0),
+                              P(#{gvt => T, end_ms => End, wall_ms => Wall, realtime_factor => T / Wall})
+                      end;
+                  error -> Sink
+              end,
+    rw_reference:run(Scene, #{on_frame => OnFrame});
 run_engine(timewarp, Scene, Sink, Opts) ->
     with_schedulers(maps:get(schedulers, Opts, undefined),
-                    fun() -> rw_timewarp:run(Scene, (maps:with([buckets, watchdog_ms], Opts))#{on_frame => Sink}) end).
+                    fun() -> rw_timewarp:run(Scene, (maps:with([buckets, watchdog_ms, on_progress], Opts))#{on_frame => Sink}) end).
 
 with_schedulers(undefined, Fun) -> Fun();
 with_schedulers(N, Fun) ->
@@ -188,7 +223,8 @@ check_values([{K, V} | Rest]) when (K =:= buckets orelse K =:= schedulers orelse
 check_values([{K, V} | Rest]) when (K =:= until orelse K =:= substep orelse K =:= stride orelse
                                     K =:= frame_ms), is_integer(V), V > 0 -> check_values(Rest);
 check_values([{frames, F} | Rest]) when is_list(F); is_binary(F) -> check_values(Rest);
-check_values([{on_frame, F} | Rest]) when is_function(F, 1) -> check_values(Rest);
+check_values([{K, F} | Rest]) when (K =:= on_frame orelse K =:= on_progress), is_function(F, 1) ->
+    check_values(Rest);
 check_values([{K, V} | _]) ->
     {error, lists:flatten(io_lib:format("bad value for option ~p: ~p", [K, V]))}.
 

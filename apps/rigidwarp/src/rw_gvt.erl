@@ -10,7 +10,7 @@
 -module(rw_gvt).
 -behaviour(gen_server).
 -include("rigidwarp.hrl").
--export([start_link/0, go/4, subscribe/2, latest/1, frame_at/2, gvt/1, sync_after/4]).
+-export([start_link/0, go/4, subscribe/2, latest/1, frame_at/2, frames_after/3, gvt/1, sync_after/4]).
 -export([init/1, handle_call/3, handle_cast/2, handle_info/2]).
 
 -record(s, {
@@ -54,6 +54,12 @@ frame_at(Ring, T) ->
         [{_, Frame}] -> Frame;
         [] -> none
     end.
+
+%% Up to Max frames of the ring after T, oldest first.
+-spec frames_after(ets:tid(), integer(), pos_integer()) -> [rw_reference:frame()].
+frames_after(Ring, T, Max) ->
+    Ts = lists:sort(ets:select(Ring, [{{{t, '$1'}, '_'}, [{'>', '$1', T}], ['$1']}])),
+    [F || Ti <- lists:sublist(Ts, Max), F <- [frame_at(Ring, Ti)], F =/= none].
 
 -spec init([]) -> {ok, #s{}}.
 init([]) -> {ok, #s{}}.

@@ -2,14 +2,15 @@
 %% rw_sims_sup, starts a body per sphere, and collects frames and counters.
 -module(rw_timewarp).
 -include("rigidwarp.hrl").
--export([start/2, run/2, stop/1, stats/1, default_buckets/0, end_ms/1]).
+-export([start/2, run/2, stop/1, stats/1, progress/2, default_buckets/0, end_ms/1]).
 -export_type([handle/0, options/0]).
 
--type handle() :: #{sup := pid(), gvt := pid(), ring := ets:tid(), sim := #sim{}}.
+-type handle() :: #{sup := pid(), gvt := pid(), ring := ets:tid(), sim := #sim{}, started := integer()}.
 -type options() :: #{buckets => pos_integer(), owner => pid(), subscribe => boolean(),
                      watchdog_ms => pos_integer(), ring_size => pos_integer(),
                      delay => {Seed :: integer(), MaxMs :: non_neg_integer()},
-                     on_frame => fun((rw_reference:frame()) -> any())}.
+                     on_frame => fun((rw_reference:frame()) -> any()),
+                     on_progress => fun((map()) -> any())}.
 
 -define(STAT_NAMES, [events, antievents, primary_rollbacks, secondary_rollbacks,
                      rolled_back_substeps, computed_substeps]).
@@ -44,7 +45,8 @@ start(#scene{spheres = Spheres, initial = Initial, duration_ms = End} = Scene, O
             maps:get(subscribe, Opts, false) andalso rw_gvt:subscribe(Gvt, maps:get(owner, Opts, self())),
             ok = rw_gvt:go(Gvt, Sim, Bodies, Opts),
             [P ! go || P <- Bodies],
-            {ok, #{sup => Sup, gvt => Gvt, ring => Ring, sim => Sim}};
+            {ok, #{sup => Sup, gvt => Gvt, ring => Ring, sim => Sim,
+                   started => erlang:monotonic_time(millisecond)}};
         {error, _} = Error ->
             Error
     end.
@@ -66,12 +68,27 @@ stats(#{sim := #sim{stats = Ref, n = N, end_ms = End, scene = #scene{substep_ms 
          committed_substeps => Committed,
          efficiency => case Computed of 0 -> 1.0; _ -> Committed / Computed end}.
 
+%% How far a running simulation is: GVT, how far the fastest body is ahead
+%% of it, realtime factor so far and the counters.
+-spec progress(handle(), integer()) -> map().
+progress(#{sim := #sim{lvts = Lvts, end_ms = End}, started := T0} = H, Gvt) ->
+    #{size := Size} = atomics:info(Lvts),
+    Lead = lists:max([atomics:get(Lvts, I) || I <- lists:seq(1, Size)]),
+    Wall = max(1, erlang:monotonic_time(millisecond) - T0),
+    G = max(Gvt, 0),
+    (stats(H))#{gvt => Gvt, end_ms => End, max_lvt => Lead, wall_ms => Wall,
+                realtime_factor => G / Wall}.
+
 %% Run to the end, calling on_frame for every committed frame in order.
 -spec run(#scene{}, options()) -> {ok, map()} | {error, term()}.
 run(Scene, Opts) ->
-    OnFrame = maps:get(on_frame, Opts, fun(_) -> ok end),
+    OnFrame0 = maps:get(on_frame, Opts, fun(_) -> ok end),
     case start(Scene, Opts#{owner => self(), subscribe => true}) of
         {ok, #{sup := Sup, gvt := Gvt} = H} ->
+            OnFrame = case maps:find(on_progress, Opts) of
+                          {ok, P} -> fun({frame, T, _} = F) -> OnFrame0(F), P(progress(H, T)) end;
+                          error -> OnFrame0
+                      end,
             MRef = erlang:monitor(process, Sup),
             Result = try collect(Gvt, MRef, OnFrame, 0)
                      after

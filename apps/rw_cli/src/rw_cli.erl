@@ -1,13 +1,10 @@
 %% The `rigidwarp` escript: batch runs of scene files.
 %% Exit codes: 0 ok, 2 bad input (flags or scene), 1 runtime failure.
 -module(rw_cli).
--export([main/1, parse/1]).
+-export([main/1, parse/1, pos_int/2]).
 
--define(USAGE,
-"usage: rigidwarp <command> [options]
-
-commands:
-  run SCENE.json [options]   run a scene; the summary JSON is the last line on stdout
+-define(RUN_HELP,
+"  run SCENE.json [options]   run a scene; the summary JSON is the last line on stdout
       --engine ENGINE        timewarp (default, parallel) or reference (sequential oracle)
       --schedulers N         scheduler threads for the timewarp engine (default: all cores)
       --buckets N            TVHT bucket processes (default: the scene's buckets, else 64)
@@ -16,12 +13,34 @@ commands:
       --substep MS           substep in ms (default: the scene's substep_ms)
       --stride MS            LVT_ub - GVT in ms (default: the scene's stride_ms)
       --frame-ms MS          frame interval in ms (default: the scene's frame_ms)
-      --quiet                no progress lines on stderr
-  validate SCENE.json        check a scene file and say what is wrong with it
-  scenes [DIR]               list the scenes in DIR (default: scenarios)
-  help                       this text
+      --quiet                no progress line on stderr
+").
+-define(VALIDATE_HELP,
+"  validate SCENE.json        check a scene file and say what is wrong with it
+").
+-define(SCENES_HELP,
+"  scenes [DIR]               list the scenes in DIR (default: scenarios), one line each
+").
+-define(VIEW_HELP,
+"  view FRAMES.jsonl --scene SCENE.json [--port N]
+                             serve the 3D viewer on http://127.0.0.1:N/ (default 8765)
+                             playing back a frames file written by run --frames
+  view --live SCENE.json [run options] [--port N]
+                             run the scene on the timewarp engine and watch it live
+").
+-define(SNAPSHOT_HELP,
+"  snapshot FRAMES.jsonl --scene SCENE.json --at MS --out FILE.png
+                             a picture of the frame at MS (front view, x right, y up;
+                             gnuplot), without a browser
+").
+-define(USAGE,
+"usage: rigidwarp <command> [options]
 
-exit codes: 0 ok, 1 runtime failure, 2 bad input
+commands:
+" ?RUN_HELP ?VALIDATE_HELP ?SCENES_HELP ?VIEW_HELP ?SNAPSHOT_HELP
+"  help                       this text; rigidwarp COMMAND --help for one command
+
+exit codes: 0 ok, 1 runtime failure, 2 bad input (the message names the field or flag)
 ").
 
 -define(VALUE_FLAGS, ["--engine", "--schedulers", "--buckets", "--frames", "--until", "--substep",
@@ -53,20 +72,32 @@ main(Args) ->
 dispatch([]) -> io:put_chars(standard_error, ?USAGE), 2;
 dispatch([Help | _]) when Help =:= "help"; Help =:= "--help"; Help =:= "-h" ->
     io:put_chars(?USAGE), 0;
-dispatch(["run" | Args]) ->
-    case lists:member("--help", Args) of
-        true -> io:put_chars(?USAGE), 0;
-        false -> run(parse(Args))
-    end;
-dispatch(["validate", File]) ->
+dispatch([Cmd | Args]) ->
+    case lists:member("--help", Args) orelse lists:member("-h", Args) of
+        true -> io:put_chars(["usage: rigidwarp ", string:trim(command_help(Cmd), leading), "\n"]), 0;
+        false -> command(Cmd, Args)
+    end.
+
+command_help("run") -> ?RUN_HELP;
+command_help("validate") -> ?VALIDATE_HELP;
+command_help("scenes") -> ?SCENES_HELP;
+command_help("view") -> ?VIEW_HELP;
+command_help("snapshot") -> ?SNAPSHOT_HELP;
+command_help(Cmd) -> throw({usage, "unknown command " ++ Cmd}).
+
+command("run", Args) -> run(parse(Args));
+command("validate", [File]) ->
     case rigidwarp:load(File, #{}) of
         {ok, _} -> io:format("~ts: ok~n", [File]), 0;
         {error, Msg} -> throw({bad_input, Msg})
     end;
-dispatch(["validate" | _]) -> throw({usage, "validate takes exactly one scene file"});
-dispatch(["scenes"]) -> scenes("scenarios");
-dispatch(["scenes", Dir]) -> scenes(Dir);
-dispatch([Cmd | _]) -> throw({usage, "unknown command " ++ Cmd}).
+command("validate", _) -> throw({usage, "validate takes exactly one scene file"});
+command("scenes", []) -> scenes("scenarios");
+command("scenes", [Dir]) -> scenes(Dir);
+command("scenes", _) -> throw({usage, "scenes takes at most one directory"});
+command("view", Args) -> rw_cli_view:view(Args);
+command("snapshot", Args) -> rw_cli_view:snapshot(Args);
+command(Cmd, _) -> throw({usage, "unknown command " ++ Cmd}).
 
 scenes(Dir) ->
     Files = lists:sort(filelib:wildcard(filename:join(Dir, "*.json"))),
@@ -108,6 +139,7 @@ parse([[$- | _] = Flag | _], _, _, _) ->
 parse([File | Rest], undefined, O, Q) -> parse(Rest, File, O, Q);
 parse([Extra | _], _, _, _) -> throw({usage, "unexpected argument " ++ Extra}).
 
+-spec pos_int(string(), string()) -> pos_integer().
 pos_int(Flag, V) ->
     try list_to_integer(V) of
         I when I > 0, I =< 1 bsl 40 -> I;
