@@ -5,12 +5,14 @@
 -include_lib("stdlib/include/assert.hrl").
 -export([all/0, suite/0]).
 -export([help/1, validate_every_scenario/1, summary_is_last_line/1, frames_file/1,
-         bad_flags_exit_2/1, bad_scene_exit_2/1, scenes_lists_bundled/1]).
+         bad_flags_exit_2/1, bad_scene_exit_2/1, scenes_lists_bundled/1, bad_input_corpus/1,
+         generated_bad_inputs/1, progress_line/1, snapshot_png/1, shell_api_rejects_bad_arguments/1]).
 
 suite() -> [{timetrap, {minutes, 5}}].
 
 all() -> [help, validate_every_scenario, summary_is_last_line, frames_file, bad_flags_exit_2,
-          bad_scene_exit_2, scenes_lists_bundled].
+          bad_scene_exit_2, scenes_lists_bundled, bad_input_corpus, generated_bad_inputs, progress_line,
+          snapshot_png, shell_api_rejects_bad_arguments].
 
 help(_Config) ->
     {0, Out, _} = rw_test_lib:run_escript(["help"]),
@@ -18,7 +20,12 @@ help(_Config) ->
     {0, Out2, _} = rw_test_lib:run_escript(["run", "--help"]),
     ?assertMatch({match, _}, re:run(Out2, "--engine")),
     {2, _, Err} = rw_test_lib:run_escript([]),
-    ?assertMatch({match, _}, re:run(Err, "usage")).
+    ?assertMatch({match, _}, re:run(Err, "usage")),
+    %% every command has its own --help
+    [begin
+         {0, H, _} = rw_test_lib:run_escript([Cmd, "--help"]),
+         ?assertMatch({match, _}, re:run(H, "^usage: rigidwarp " ++ Cmd))
+     end || Cmd <- ["run", "validate", "scenes", "view", "snapshot"]].
 
 validate_every_scenario(_Config) ->
     Files = filelib:wildcard(filename:join([rw_test_lib:root(), "scenarios", "*.json"])),
@@ -69,7 +76,23 @@ bad_flags_exit_2(_Config) ->
              {["run", Scene, "--until"], "--until needs a value"},
              {["run"], "run needs a scene file"},
              {["frobnicate"], "unknown command frobnicate"},
-             {["run", Scene, "--substep", "3"], "not a multiple of the substep"}],
+             {["run", Scene, "--substep", "3"], "not a multiple of the substep"},
+             {["run", Scene, "--until", "0"], "--until must be a positive integer"},
+             {["run", Scene, "--until", "1e3"], "--until must be a positive integer"},
+             {["run", Scene, "--until", "99999999999999999999999"], "--until must be a positive integer"},
+             {["run", Scene, "--buckets", "-1"], "--buckets must be a positive integer"},
+             {["run", Scene, "--schedulers", "two"], "--schedulers must be a positive integer"},
+             {["run", Scene, Scene], "unexpected argument"},
+             {["validate"], "validate takes exactly one scene file"},
+             {["scenes", "a", "b"], "scenes takes at most one directory"},
+             {["view", "f.jsonl"], "view needs --scene"},
+             {["view", "f.jsonl", "--scene", Scene, "--port", "http"], "--port must be a port number"},
+             {["view", "--live", Scene, "--engine", "reference"], "view --live runs the timewarp engine only"},
+             {["snapshot", "f.jsonl", "--scene", Scene, "--out", "x.png"], "snapshot needs --at MS"},
+             {["snapshot", "f.jsonl", "--scene", Scene, "--at", "5"], "snapshot needs --out"},
+             {["snapshot", "f.jsonl", "--scene", Scene, "--at", "-5", "--out", "x.png"], "--at must be a non-negative"},
+             {["snapshot", "f.jsonl", "--scene", Scene, "--at", "5", "--out", "x.jpg"], "--out must name a .png"},
+             {["snapshot", "missing.jsonl", "--scene", Scene, "--at", "5", "--out", "x.png"], "cannot read frames file"}],
     [begin
          {Code, Out, Err} = rw_test_lib:run_escript(Args),
          ct:log("~p -> ~b~n~s", [Args, Code, Err]),
@@ -101,3 +124,99 @@ bad_scene_exit_2(Config) ->
 scenes_lists_bundled(_Config) ->
     {0, Out, _} = rw_test_lib:run_escript(["scenes"]),
     ?assertMatch({match, _}, re:run(Out, "head_on_elastic.json +2 bodies")).
+
+%%% The bad-input corpus (test/bad_input): for each broken scene, exit code
+%%% 2, one line on stderr with the JSON path and the problem, nothing on
+%%% stdout, no frames file (not even a partial one).
+
+bad_input_corpus(Config) ->
+    Dir = filename:join(rw_test_lib:root(), "test/bad_input"),
+    {ok, Expected} = file:consult(filename:join(Dir, "expected.terms")),
+    Files = [filename:basename(F) || F <- filelib:wildcard(filename:join(Dir, "*.json"))],
+    ?assertEqual(lists:sort(Files), lists:sort([F || {F, _} <- Expected])),
+    ?assert(length(Files) >= 40),
+    [expect_rejected(filename:join(Dir, F), Msg, Config) || {F, Msg} <- Expected],
+    ok.
+
+expect_rejected(File, Msg, Config) ->
+    Frames = filename:join(?config(priv_dir, Config), "never.jsonl"),
+    {Code, Out, Err} = rw_test_lib:run_escript(["run", File, "--frames", Frames]),
+    ct:log("~s -> ~b~n~s", [File, Code, Err]),
+    ?assertEqual(2, Code),
+    ?assertEqual(<<>>, Out),
+    ?assertEqual([unicode:characters_to_binary(["rigidwarp: ", File, ": ", Msg])],
+                 [binary:part(L, 0, min(byte_size(L), byte_size(unicode:characters_to_binary(["rigidwarp: ", File, ": ", Msg]))))
+                  || L <- binary:split(string:trim(Err), <<"\n">>, [global])]),
+    ?assertNot(filelib:is_file(Frames)),
+    ?assertNot(filelib:is_file(Frames ++ ".part")).
+
+%% Inputs too big or too odd to commit: made here.
+generated_bad_inputs(Config) ->
+    Dir = ?config(priv_dir, Config),
+    Big = filename:join(Dir, "big.json"),
+    {ok, Fd} = file:open(Big, [write, raw]),
+    ok = file:write(Fd, "{\"name\": \""),
+    Chunk = binary:copy(<<"x">>, 1024 * 1024),
+    [ok = file:write(Fd, Chunk) || _ <- lists:seq(1, 100)],
+    ok = file:write(Fd, "\"}"),
+    ok = file:close(Fd),
+    Garbage = filename:join(Dir, "garbage.json"),
+    ok = file:write_file(Garbage, crypto:strong_rand_bytes(4096)),
+    Nul = filename:join(Dir, "nul.json"),
+    ok = file:write_file(Nul, <<"{\"name\": \"a\", \"duration_ms\": 1", 0, "0}">>),
+    Latin1 = filename:join(Dir, "latin1.json"),
+    ok = file:write_file(Latin1, <<"{\"name\": \"caf", 16#E9, "\", \"duration_ms\": 10}">>),
+    Cases = [{Big, "$: file is larger than 64 MiB"},
+             {Garbage, "$: invalid JSON at line "},
+             {Nul, "$: invalid JSON at line 1, column 31: unexpected byte 0x00"},
+             {Latin1, "$: invalid JSON at line 1"},
+             {Dir, "$: cannot read file"}],
+    [expect_rejected(F, Msg, Config) || {F, Msg} <- Cases],
+    ok = file:delete(Big).
+
+%% Not a terminal here: plain progress lines on stderr, with the Time Warp
+%% numbers; --quiet silences them; the summary stays the last stdout line.
+progress_line(_Config) ->
+    Scene = rw_test_lib:scenario("bouncing_50_250.json"),
+    {0, Out, Err} = rw_test_lib:run_escript(["run", Scene, "--until", "500", "--schedulers", "1"]),
+    Lines = binary:split(string:trim(Err), <<"\n">>, [global]),
+    ct:log("~s", [Err]),
+    [?assertMatch({match, _}, re:run(L, "^rigidwarp: t=[0-9]+/500 ms  realtime x[0-9.]+  GVT lag [0-9]+ ms  "
+                                        "rollbacks [0-9]+")) || L <- Lines],
+    ?assertMatch({match, _}, re:run(lists:last(Lines), "t=500/500 ms.*ETA 0.0 s")),
+    ?assertNotEqual(nomatch, binary:match(Out, <<"\"engine\":\"timewarp\"">>)),
+    {0, _, <<>>} = rw_test_lib:run_escript(["run", Scene, "--until", "100", "--quiet"]).
+
+snapshot_png(Config) ->
+    Dir = ?config(priv_dir, Config),
+    Scene = rw_test_lib:scenario("newtons_cradle.json"),
+    Frames = filename:join(Dir, "cradle.jsonl"),
+    Png = filename:join(Dir, "cradle.png"),
+    {0, _, _} = rw_test_lib:run_escript(["run", Scene, "--until", "300", "--quiet", "--frames", Frames]),
+    {0, Out, _} = rw_test_lib:run_escript(["snapshot", Frames, "--scene", Scene, "--at", "250", "--out", Png]),
+    ?assertEqual(list_to_binary(Png), string:trim(Out)),
+    {ok, <<137, "PNG", _/binary>> = Bin} = file:read_file(Png),
+    ?assert(byte_size(Bin) > 5000),
+    %% a frames file with a broken line names the line
+    ok = file:write_file(Frames, <<"{\"t\":0,\"bodies\":[]}\nnot json\n">>),
+    {2, _, Err} = rw_test_lib:run_escript(["snapshot", Frames, "--scene", Scene, "--at", "0", "--out", Png]),
+    ?assertMatch({match, _}, re:run(Err, ":2: not a frame line")).
+
+%% The shell API answers bad arguments with {error, Message}, starting nothing.
+shell_api_rejects_bad_arguments(_Config) ->
+    {ok, _} = application:ensure_all_started(rigidwarp),
+    Scene = rw_test_lib:scenario("head_on_elastic.json"),
+    Before = supervisor:which_children(rw_sims_sup),
+    Cases = [{fun() -> rigidwarp:run(some_atom, #{}) end, "the scene file must be a string"},
+             {fun() -> rigidwarp:run(Scene, #{untill => 5}) end, "unknown option untill"},
+             {fun() -> rigidwarp:run(Scene, #{until => -5}) end, "bad value for option until"},
+             {fun() -> rigidwarp:run(Scene, not_a_map) end, "options must be a map"},
+             {fun() -> rigidwarp:start(Scene, #{engine => reference}) end, "timewarp engine only"},
+             {fun() -> rigidwarp:start("/nonexistent.json", #{}) end, "cannot read file"},
+             {fun() -> rigidwarp:frames(not_a_sim) end, "not a simulation"},
+             {fun() -> rigidwarp:stats(#{}) end, "not a simulation"}],
+    [begin
+         {error, Msg} = F(),
+         ?assertMatch({match, _}, re:run(Msg, "\\Q" ++ Expect ++ "\\E"))
+     end || {F, Expect} <- Cases],
+    ?assertEqual(Before, supervisor:which_children(rw_sims_sup)).

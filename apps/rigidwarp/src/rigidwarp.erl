@@ -62,24 +62,43 @@ start(File, Opts) ->
             {error, lists:flatten(io_lib:format("start/2 runs the timewarp engine only, not ~p", [Other]))}
     end.
 
--spec stop(sim()) -> ok.
-stop(Sim) -> rw_timewarp:stop(Sim).
+%% Every call on a simulation handle checks it first, as the escript
+%% checks its flags: a wrong argument is an {error, Message}, not a crash.
+-define(IS_SIM(S), (is_map(S) andalso is_map_key(ring, S) andalso is_map_key(gvt, S)
+                    andalso is_map_key(sup, S))).
 
--spec frames(sim()) -> rw_reference:frame() | none.
+-spec stop(sim()) -> ok | {error, string()}.
+stop(Sim) when ?IS_SIM(Sim) -> rw_timewarp:stop(Sim);
+stop(Other) -> not_a_sim(Other).
+
+-spec frames(sim()) -> rw_reference:frame() | none | {error, string()}.
 frames(Sim) -> frames(Sim, latest).
 
--spec frames(sim(), latest | non_neg_integer()) -> rw_reference:frame() | none.
-frames(#{ring := Ring}, latest) -> rw_gvt:latest(Ring);
-frames(#{ring := Ring}, T) when is_integer(T), T >= 0 -> rw_gvt:frame_at(Ring, T).
+-spec frames(sim(), latest | non_neg_integer()) -> rw_reference:frame() | none | {error, string()}.
+frames(Sim, T) when ?IS_SIM(Sim) ->
+    Ring = maps:get(ring, Sim),
+    alive(fun() ->
+                  case T of
+                      latest -> rw_gvt:latest(Ring);
+                      _ when is_integer(T), T >= 0 -> rw_gvt:frame_at(Ring, T);
+                      _ -> {error, lists:flatten(io_lib:format("frame time must be latest or ms >= 0, got ~0p", [T]))}
+                  end
+          end);
+frames(Other, _) -> not_a_sim(Other).
 
 %% Up to Max committed frames after T ms that are still in the ring.
--spec frames_after(sim(), integer(), pos_integer()) -> [rw_reference:frame()].
-frames_after(#{ring := Ring}, T, Max) when is_integer(T), is_integer(Max), Max > 0 ->
-    rw_gvt:frames_after(Ring, T, Max).
+-spec frames_after(sim(), integer(), pos_integer()) -> [rw_reference:frame()] | {error, string()}.
+frames_after(Sim, T, Max) when ?IS_SIM(Sim), is_integer(T), is_integer(Max), Max > 0 ->
+    alive(fun() -> rw_gvt:frames_after(maps:get(ring, Sim), T, Max) end);
+frames_after(Sim, T, Max) when ?IS_SIM(Sim) ->
+    {error, lists:flatten(io_lib:format("frames_after needs an integer time and a positive count, got ~0p, ~0p",
+                                        [T, Max]))};
+frames_after(Other, _, _) -> not_a_sim(Other).
 
 %% Counters of a running (or finished, not yet stopped) simulation.
--spec stats(sim()) -> map().
-stats(#{gvt := Gvt} = Sim) -> rw_timewarp:progress(Sim, rw_gvt:gvt(Gvt)).
+-spec stats(sim()) -> map() | {error, string()}.
+stats(Sim) when ?IS_SIM(Sim) -> alive(fun() -> rw_timewarp:progress(Sim, rw_gvt:gvt(maps:get(gvt, Sim))) end);
+stats(Other) -> not_a_sim(Other).
 
 %% Serve the live viewer for Sim on 127.0.0.1 (port 8765 unless Opts say
 %% otherwise); open the returned URL in a browser.
@@ -87,35 +106,60 @@ stats(#{gvt := Gvt} = Sim) -> rw_timewarp:progress(Sim, rw_gvt:gvt(Gvt)).
 view(Sim) -> view(Sim, #{}).
 
 -spec view(sim(), #{port => inet:port_number()}) -> {ok, string()} | {error, string()}.
-view(#{ring := _} = Sim, Opts) when is_map(Opts) ->
+view(Sim, #{} = Opts) when ?IS_SIM(Sim) ->
     ok = rw_viewer:prepare(),
     case rw_viewer:start({live, Sim}, maps:with([port], Opts)) of
         {ok, Server} -> {ok, rw_viewer:url(Server)};
         {error, _} = Error -> Error
-    end.
+    end;
+view(Sim, Opts) when ?IS_SIM(Sim) ->
+    {error, lists:flatten(io_lib:format("options must be a map such as #{port => 8765}, got ~0p", [Opts]))};
+view(Other, _) -> not_a_sim(Other).
 
--spec gvt(sim()) -> integer().
-gvt(#{gvt := Gvt}) -> rw_gvt:gvt(Gvt).
+-spec gvt(sim()) -> integer() | {error, string()}.
+gvt(Sim) when ?IS_SIM(Sim) -> alive(fun() -> rw_gvt:gvt(maps:get(gvt, Sim)) end);
+gvt(Other) -> not_a_sim(Other).
 
--spec subscribe(sim()) -> ok.
-subscribe(#{gvt := Gvt}) -> rw_gvt:subscribe(Gvt, self()).
+-spec subscribe(sim()) -> ok | {error, string()}.
+subscribe(Sim) when ?IS_SIM(Sim) -> alive(fun() -> rw_gvt:subscribe(maps:get(gvt, Sim), self()) end);
+subscribe(Other) -> not_a_sim(Other).
 
--spec await(sim(), timeout()) -> ok | timeout.
-await(#{gvt := Gvt, sim := Sim} = H, Timeout) ->
+-spec await(sim(), timeout()) -> ok | timeout | {error, string()}.
+await(Sim, Timeout) when ?IS_SIM(Sim), (Timeout =:= infinity orelse (is_integer(Timeout) andalso Timeout >= 0)) ->
+    alive(fun() -> await_end(Sim, Timeout) end);
+await(Sim, Timeout) when ?IS_SIM(Sim) ->
+    {error, lists:flatten(io_lib:format("timeout must be infinity or ms >= 0, got ~0p", [Timeout]))};
+await(Other, _) -> not_a_sim(Other).
+
+await_end(#{gvt := Gvt, sim := Sim} = H, Timeout) ->
     End = rw_timewarp:end_ms(Sim),
     case rw_gvt:gvt(Gvt) >= End of
         true -> ok;
         false when Timeout =/= infinity, Timeout =< 0 -> timeout;
         false ->
             receive {rw_done, Gvt, _} -> ok
-            after 50 -> await(H, case Timeout of infinity -> infinity; _ -> Timeout - 50 end)
+            after 50 -> await_end(H, case Timeout of infinity -> infinity; _ -> Timeout - 50 end)
             end
+    end.
+
+not_a_sim(Other) ->
+    {error, lists:flatten(io_lib:format("not a simulation (use the Sim that rigidwarp:start/2 returned), got ~0P",
+                                        [Other, 8]))}.
+
+%% A stopped simulation's processes and tables are gone.
+alive(Fun) ->
+    try Fun()
+    catch
+        exit:{noproc, _} -> {error, "the simulation has been stopped"};
+        error:badarg -> {error, "the simulation has been stopped"}
     end.
 
 %% Load and validate a scene with the overrides in Opts.
 -spec load(file:filename(), run_options()) -> {ok, #scene{}} | {error, string()}.
 load(File, Opts) ->
-    case check_options(Opts) of
+    case check_file(File) andalso check_options(Opts) of
+        false ->
+            {error, lists:flatten(io_lib:format("the scene file must be a string (a path), got ~0p", [File]))};
         ok ->
             case rw_scene:load(File, overrides(Opts)) of
                 {ok, Scene} -> {ok, Scene};
@@ -206,6 +250,14 @@ summary(#scene{name = Name, substep_ms = Dt, stride_ms = Stride, spheres = Spher
     Stats#{scene => Name, engine => Engine, bodies => length(Spheres), substep_ms => Dt,
            stride_ms => Stride, sim_ms => SimMs, wall_ms => round(WallMs),
            realtime_factor => SimMs / max(WallMs, 0.001)}.
+
+check_file(File) when is_list(File); is_binary(File) ->
+    try unicode:characters_to_list(File) of
+        L when is_list(L), L =/= [] -> true;
+        _ -> false
+    catch error:_ -> false
+    end;
+check_file(_) -> false.
 
 check_options(Opts) when is_map(Opts) ->
     Bad = [K || K <- maps:keys(Opts), not lists:member(K, ?OPTION_KEYS)],

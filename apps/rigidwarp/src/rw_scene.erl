@@ -66,19 +66,51 @@ format_error({scene_error, File, Path, Msg}) ->
 %%% Decoding
 
 decode(Bin) ->
+    case blank(Bin) of
+        true -> {error, "the file is empty (a scene is a JSON object)"};
+        false -> decode_json(Bin)
+    end.
+
+blank(<<C, Rest/binary>>) when C =:= $\s; C =:= $\t; C =:= $\r; C =:= $\n -> blank(Rest);
+blank(Bin) -> Bin =:= <<>>.
+
+decode_json(Bin) ->
     try jiffy:decode(Bin, [return_maps, dedupe_keys]) of
         Map when is_map(Map) -> {ok, Map};
         _ -> {error, "a scene must be a JSON object"}
     catch
         error:{Pos, truncated_json} when is_integer(Pos) ->
             {error, "invalid JSON: the text ends early"};
-        error:{Pos, Reason} when is_integer(Pos) ->
-            {error, lists:flatten(io_lib:format("invalid JSON at byte ~b: ~p", [Pos, Reason]))};
+        error:{Pos, _Reason} when is_integer(Pos) ->
+            {error, json_error_at(Bin, Pos)};
         error:{range, _} ->
             {error, "invalid JSON: a number is too large for a double"};
         error:_ ->
             {error, "invalid JSON"}
     end.
+
+%% Where jiffy stopped, as a person counts: line, column and the character.
+json_error_at(Bin, Pos) ->
+    Offset = max(0, min(Pos - 1, byte_size(Bin))),
+    Before = binary:part(Bin, 0, Offset),
+    Lines = binary:split(Before, <<"\n">>, [global]),
+    Col = byte_size(lists:last(Lines)) + 1,
+    What = case Offset < byte_size(Bin) of
+               true ->
+                   case binary:at(Bin, Offset) of
+                       C when C >= 32, C < 127 -> io_lib:format("unexpected '~c'", [C]);
+                       C -> io_lib:format("unexpected byte 0x~2.16.0B", [C])
+                   end;
+               false -> "unexpected end"
+           end,
+    Hint = case binary:part(Bin, Offset, min(8, byte_size(Bin) - Offset)) of
+               <<"NaN", _/binary>> -> " (NaN is not a JSON number)";
+               <<"Infinity", _/binary>> -> " (Infinity is not a JSON number)";
+               <<"-Infinity", _/binary>> -> " (Infinity is not a JSON number)";
+               <<"'", _/binary>> -> " (JSON strings use double quotes)";
+               _ -> ""
+           end,
+    lists:flatten(io_lib:format("invalid JSON at line ~b, column ~b: ~s~s", [length(Lines), Col, What, Hint])).
 
 %%% Building
 

@@ -113,11 +113,17 @@ scene({playback, S, _}) -> S.
 frames_after({playback, _, Frames}, T, Max) ->
     lists:sublist([Fr || {frame, FT, _} = Fr <- Frames, FT > T], min(Max, ?MAX_FRAMES_PER_CALL));
 frames_after({live, Sim}, T, Max) ->
-    rigidwarp:frames_after(Sim, T, min(Max, ?MAX_FRAMES_PER_CALL)).
+    case rigidwarp:frames_after(Sim, T, min(Max, ?MAX_FRAMES_PER_CALL)) of
+        Frames when is_list(Frames) -> Frames;
+        {error, _} -> []
+    end.
 
 -spec status(source()) -> map().
 status({playback, #scene{duration_ms = End}, Frames}) ->
     Last = case Frames of [] -> -1; _ -> element(2, lists:last(Frames)) end,
     #{gvt => Last, end_ms => min(End, max(Last, 0)), frames => length(Frames)};
 status({live, Sim}) ->
-    rigidwarp:stats(Sim).
+    case rigidwarp:stats(Sim) of
+        #{} = Stats -> Stats;
+        {error, Msg} -> #{error => unicode:characters_to_binary(Msg)}
+    end.

@@ -153,13 +153,14 @@ run({File, Opts, Quiet}) ->
                       {ok, _} = Ok -> Ok;
                       {error, Msg} -> throw({bad_input, Msg})
                   end,
-    T0 = erlang:monotonic_time(millisecond),
     Total = element(4, Scene),
-    Progress = case Quiet of
-                   true -> fun(_) -> ok end;
-                   false -> progress(T0, Total)
-               end,
-    case rigidwarp:run_scene(Scene, Opts#{on_frame => Progress}) of
+    {Progress, Finish} = case Quiet of
+                             true -> {#{}, fun() -> ok end};
+                             false -> progress(Total, is_terminal())
+                         end,
+    Result = rigidwarp:run_scene(Scene, maps:merge(Opts, Progress)),
+    Finish(),
+    case Result of
         {ok, Summary} ->
             io:put_chars([jiffy:encode(Summary), $\n]),
             0;
@@ -168,18 +169,46 @@ run({File, Opts, Quiet}) ->
             1
     end.
 
-%% A plain line on stderr at most once a second.
-progress(T0, Total) ->
-    Last = erlang:make_ref(),
-    put(Last, T0),
-    fun({frame, T, _}) ->
-            Now = erlang:monotonic_time(millisecond),
-            case Now - get(Last) >= 1000 orelse T =:= Total of
-                true ->
-                    put(Last, Now),
-                    Wall = max(Now - T0, 1),
-                    io:format(standard_error, "rigidwarp: t=~b/~b ms  realtime x~.2f  wall ~.1f s~n",
-                              [T, Total, T / Wall, Wall / 1000]);
-                false -> ok
-            end
+%% The progress line on stderr: redrawn in place (4 times a second) on a
+%% terminal, a plain line every 2 s otherwise (CI logs, pipes), and always
+%% a last one at the end.
+progress(Total, Tty) ->
+    Key = {?MODULE, progress},
+    put(Key, {undefined, ""}),
+    Every = case Tty of true -> 250; false -> 2000 end,
+    Fun = fun(#{gvt := G, wall_ms := Wall} = P) ->
+                  Now = erlang:monotonic_time(millisecond),
+                  {Last, _} = get(Key),
+                  case Last =:= undefined orelse Now - Last >= Every orelse G >= Total of
+                      true ->
+                          Line = progress_line(Total, P, Wall),
+                          put(Key, {Now, Line}),
+                          case Tty of
+                              true -> io:put_chars(standard_error, ["\r\e[K", Line]);
+                              false -> io:put_chars(standard_error, [Line, $\n])
+                          end;
+                      false -> ok
+                  end
+          end,
+    Finish = fun() -> Tty andalso element(2, get(Key)) =/= "" andalso io:put_chars(standard_error, "\n"), ok end,
+    {#{on_progress => Fun}, Finish}.
+
+progress_line(Total, #{gvt := G, realtime_factor := Rt} = P, Wall) ->
+    Eta = case G > 0 of
+              true -> io_lib:format("  ETA ~.1f s", [(Total - G) * Wall / G / 1000]);
+              false -> ""
+          end,
+    Engine = case P of
+                 #{max_lvt := MaxLvt, rollbacks := Rb} ->
+                     io_lib:format("  GVT lag ~b ms  rollbacks ~b", [max(0, MaxLvt - G), Rb]);
+                 _ -> ""
+             end,
+    lists:flatten(io_lib:format("rigidwarp: t=~b/~b ms  realtime x~.2f~s~s", [max(G, 0), Total, float(Rt), Engine, Eta])).
+
+%% stderr on a terminal? (io:columns/0 cannot tell in an escript on OTP 25.)
+is_terminal() ->
+    case file:read_link("/proc/" ++ os:getpid() ++ "/fd/2") of
+        {ok, "/dev/pts/" ++ _} -> true;
+        {ok, "/dev/tty" ++ _} -> true;
+        _ -> false
     end.
