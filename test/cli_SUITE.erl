@@ -123,7 +123,7 @@ bad_scene_exit_2(Config) ->
 
 scenes_lists_bundled(_Config) ->
     {0, Out, _} = rw_test_lib:run_escript(["scenes"]),
-    ?assertMatch({match, _}, re:run(Out, "head_on_elastic.json +2 bodies")).
+    ?assertMatch({match, _}, re:run(Out, "head_on_elastic.json +2 bodies +1000 ms  [A-Z]")).
 
 %%% The bad-input corpus (test/bad_input): for each broken scene, exit code
 %%% 2, one line on stderr with the JSON path and the problem, nothing on

@@ -195,11 +195,12 @@ settle(D) -> {next_state, step, D, [{timeout, 0, step}]}.
 
 %% {Limit, Idx, Pid}: how far the slowest body touched in the last few
 %% substeps lets this one go (its LVT plus one substep), or none.
+neighbour_limit(#d{contacts = Contacts}) when map_size(Contacts) =:= 0 -> none;
 neighbour_limit(#d{lvt = Lvt, dt = Dt, contacts = Contacts, partners = Partners, sim = #sim{lvts = Lvts}}) ->
     Recent = lists:usort([PIdx || K <- lists:seq(0, ?RECENT_SUBSTEPS - 1), T <- [Lvt - K * Dt], T >= 0,
                                   {PIdx, _} <- maps:values(maps:get(T, Contacts, #{}))]),
     lists:foldl(fun(PIdx, Best) ->
-                        L = atomics:get(Lvts, PIdx + 1) + Dt,
+                        L = atomics:get(Lvts, rw_timewarp:lvt_slot(PIdx)) + Dt,
                         case Best of
                             {BL, _, _} when BL =< L -> Best;
                             _ -> {L, PIdx, maps:get(PIdx, Partners)}
@@ -220,7 +221,7 @@ on_watch(Pid, T, #d{watchers = W} = D) ->
 
 %% Publish the LVT; wake the bodies waiting for it.
 publish_lvt(#d{sim = #sim{lvts = Lvts}, idx = Idx, lvt = Lvt, watchers = W} = D) ->
-    atomics:put(Lvts, Idx + 1, Lvt),
+    atomics:put(Lvts, rw_timewarp:lvt_slot(Idx), Lvt),
     case map_size(W) of
         0 -> D;
         _ ->

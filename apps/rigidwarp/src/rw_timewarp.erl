@@ -2,7 +2,7 @@
 %% rw_sims_sup, starts a body per sphere, and collects frames and counters.
 -module(rw_timewarp).
 -include("rigidwarp.hrl").
--export([start/2, run/2, stop/1, stats/1, progress/2, default_buckets/0, end_ms/1]).
+-export([start/2, run/2, stop/1, stats/1, progress/2, default_buckets/0, end_ms/1, lvt_slot/1]).
 -export_type([handle/0, options/0]).
 
 -type handle() :: #{sup := pid(), gvt := pid(), ring := ets:tid(), sim := #sim{}, started := integer()}.
@@ -33,7 +33,7 @@ start(#scene{spheres = Spheres, initial = Initial, duration_ms = End} = Scene, O
             Sim = #sim{scene = Scene, n = length(Spheres), end_ms = End, buckets = Buckets, gvt = Gvt,
                        records = Records, counts = Counts, ring = Ring,
                        stats = counters:new(length(?STAT_NAMES), [write_concurrency]),
-                       lvts = atomics:new(lists:max([1 | [I + 1 || #sphere{idx = I} <- Spheres]]), [{signed, false}])},
+                       lvts = atomics:new(lvt_slot(lists:max([0 | [I || #sphere{idx = I} <- Spheres]])), [{signed, false}])},
             Bodies = [begin
                           {ok, Pid} = supervisor:start_child(BodySup, [Sim, Sphere, St]),
                           Pid
@@ -50,6 +50,11 @@ start(#scene{spheres = Spheres, initial = Initial, duration_ms = End} = Scene, O
         {error, _} = Error ->
             Error
     end.
+
+%% Where body Idx publishes its LVT in #sim.lvts: one 64-byte cache line
+%% per body, so that bodies on different cores do not share lines.
+-spec lvt_slot(non_neg_integer()) -> pos_integer().
+lvt_slot(Idx) -> Idx * 8 + 1.
 
 -spec end_ms(#sim{}) -> non_neg_integer().
 end_ms(#sim{end_ms = End}) -> End.
@@ -73,7 +78,7 @@ stats(#{sim := #sim{stats = Ref, n = N, end_ms = End, scene = #scene{substep_ms 
 -spec progress(handle(), integer()) -> map().
 progress(#{sim := #sim{lvts = Lvts, end_ms = End}, started := T0} = H, Gvt) ->
     #{size := Size} = atomics:info(Lvts),
-    Lead = lists:max([atomics:get(Lvts, I) || I <- lists:seq(1, Size)]),
+    Lead = lists:max([atomics:get(Lvts, I) || I <- lists:seq(1, Size, 8)]),
     Wall = max(1, erlang:monotonic_time(millisecond) - T0),
     G = max(Gvt, 0),
     (stats(H))#{gvt => Gvt, end_ms => End, max_lvt => Lead, wall_ms => Wall,

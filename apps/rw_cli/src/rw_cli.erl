@@ -103,11 +103,24 @@ scenes(Dir) ->
     Files = lists:sort(filelib:wildcard(filename:join(Dir, "*.json"))),
     Files =:= [] andalso throw({bad_input, "no scene files in " ++ Dir}),
     [case rigidwarp:load(F, #{}) of
-         {ok, S} -> io:format("~-32ts ~5b bodies  ~6b ms~n",
-                              [filename:basename(F), length(element(9, S)), element(4, S)]);
-         {error, Msg} -> io:format("~-32ts INVALID: ~ts~n", [filename:basename(F), Msg])
+         {ok, S} -> io:format("~-24ts ~5b bodies  ~5b ms  ~ts~n",
+                              [filename:basename(F), length(element(9, S)), element(4, S), summary_line(F)]);
+         {error, Msg} -> io:format("~-24ts INVALID: ~ts~n", [filename:basename(F), Msg])
      end || F <- Files],
     0.
+
+%% A scene's description, cut to fit a line.
+summary_line(File) ->
+    {ok, Bin} = file:read_file(File),
+    case jiffy:decode(Bin, [return_maps]) of
+        #{<<"description">> := D} when is_binary(D) ->
+            Text = unicode:characters_to_list(D),
+            case string:length(Text) > 80 of
+                true -> string:slice(Text, 0, 77) ++ "...";
+                false -> Text
+            end;
+        _ -> ""
+    end.
 
 %% Flags to {SceneFile, Options, Quiet}.
 -spec parse([string()]) -> {string(), map(), boolean()}.
