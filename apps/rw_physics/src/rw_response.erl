@@ -22,11 +22,21 @@ pair(M, #sphere{inv_mass = ImA, inv_inertia = IiA, radius = RA}, #st{v = VA, w =
     impulse(M, ImA, IiA, RA, VA, WA, ImB, IiB, RB, VB, WB, Contact).
 
 %% Sphere against a static body: the fixture has infinite mass and no motion.
+%% The impulse acts on the velocity the sphere will have after this
+%% substep's gravity (as Box2D integrates velocities before solving
+%% contacts): a sphere resting on a fixture then gets exactly the impulse
+%% that cancels gravity, and does not sink, however long the substep.
+%% Between two spheres gravity changes both velocities alike, so pairs
+%% need no such term.
 -spec fixture(#model{}, #sphere{}, #st{}, #contact{}) -> effect().
-fixture(#model{rotation = Rot} = M, #sphere{inv_mass = Im, inv_inertia = Ii, radius = R}, #st{v = V, w = W},
-        Contact) ->
+fixture(#model{rotation = Rot, gravity = G, dt = Dt} = M, #sphere{inv_mass = Im, inv_inertia = Ii, radius = R},
+        #st{v = V, w = W}, Contact) ->
     Still = case Rot of true -> rw_vec:zero(); false -> undefined end,
-    {EffA, _} = impulse(M, Im, Ii, R, V, W, 0.0, 0.0, 0.0, rw_vec:zero(), Still, Contact),
+    Vg = case G of
+             undefined -> V;
+             _ -> rw_vec:madd(V, G, Dt)
+         end,
+    {EffA, _} = impulse(M, Im, Ii, R, Vg, W, 0.0, 0.0, 0.0, rw_vec:zero(), Still, Contact),
     EffA.
 
 impulse(#model{rotation = Rot, restitution = E, rest_speed = RestSpeed, friction = Mu,
