@@ -2,7 +2,7 @@
 REBAR ?= rebar3
 ESCRIPT = _build/default/bin/rigidwarp
 
-.PHONY: all deps build test viewer-test run shell clean
+.PHONY: all deps build test viewer-test bench run shell clean
 
 all: build
 
@@ -20,6 +20,12 @@ test: build
 # The browser viewer in headless chromium (installs chromium and npm packages).
 viewer-test: build
 	@scripts/viewer-test
+
+# The paper's Figures 7-10 on this machine (minutes; not part of make test).
+# BENCH_MS: simulated ms per run (default 1000); BENCH_REPEATS (default 3).
+bench: build
+	BENCH_MS=$${BENCH_MS:-1000} BENCH_REPEATS=$${BENCH_REPEATS:-3} $(REBAR) ct --dir bench --suite rw_bench_SUITE
+	@scripts/plot-bench
 
 # The first thing to try: a scene end to end with a progress line and a summary.
 run: build

@@ -29,5 +29,6 @@
     counts :: ets:tid(),                      % {T, Committed}: bodies committed at T
     ring :: ets:tid(),                        % committed frames (see rw_gvt)
     stats :: counters:counters_ref(),         % see rw_timewarp:stat_index/1
+    profile = false :: boolean(),             % time the engine's stages (rw_timewarp:stats/1)
     lvts :: atomics:atomics_ref()             % every body's LVT, at rw_timewarp:lvt_slot(Idx)
 }).

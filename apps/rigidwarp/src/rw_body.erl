@@ -69,6 +69,19 @@
 -define(ST_SECONDARY, 4).
 -define(ST_ROLLED_BACK, 5).
 -define(ST_COMPUTED, 6).
+%% reductions per stage, counted only when the simulation is profiled
+-define(ST_RED_TVHT, 7).                 % hashing here, the rest by the buckets
+-define(ST_RED_INTEGRATE, 8).
+-define(ST_RED_ROLLBACK, 9).
+-define(ST_RED_GVT, 10).
+-define(ST_RED_ROLLBACK_CALLS, 11).      % bucket calls inside rollbacks, subtracted
+
+%% Time Expr into counter Stage when profiling; costs one test otherwise.
+-define(TIMED(D, Stage, Expr),
+        case (D)#d.sim#sim.profile of
+            false -> Expr;
+            true -> timed((D)#d.sim#sim.stats, Stage, fun() -> Expr end)
+        end).
 
 -spec start_link(#sim{}, #sphere{}, #st{}) -> gen_statem:start_ret().
 start_link(Sim, Sphere, St0) -> gen_statem:start_link(?MODULE, {Sim, Sphere, St0}, []).
@@ -155,7 +168,7 @@ rollback(Type, Msg, D) -> common(Type, Msg, D).
 common(info, {event, _, _, _, _, _} = Msg, D) -> settle(on_message(Msg, D));
 common(info, {antievent, _, _, _} = Msg, D) -> settle(on_message(Msg, D));
 common(info, {ack, _, _} = Msg, D) -> settle(on_message(Msg, D));
-common(info, {gvt, _} = Msg, D) -> settle(on_message(Msg, D));
+common(info, {gvt, _} = Msg, D) -> settle(?TIMED(D, ?ST_RED_GVT, on_message(Msg, D)));
 common(info, {watch, _, _} = Msg, D) -> settle(on_message(Msg, D));
 common(info, {reached, _, _} = Msg, D) -> settle(on_message(Msg, D));
 common(timeout, step, D) ->
@@ -235,14 +248,20 @@ publish_lvt(#d{sim = #sim{lvts = Lvts}, idx = Idx, lvt = Lvt, watchers = W} = D)
 %%% Step: integrate from LVT to Last assuming no new contacts, write
 
 advance(Lvt, Last, #d{hist = Hist} = D) ->
-    {Passed, States} = chain(Lvt, maps:get(Lvt, Hist), Last, D, [], []),
+    {Passed, States} = ?TIMED(D, ?ST_RED_INTEGRATE, chain(Lvt, maps:get(Lvt, Hist), Last, D, [], [])),
     counters:add(D#d.sim#sim.stats, ?ST_COMPUTED, length(States)),
     D1 = write_states(States, Last, D),
     %% commit every frame time this step moved past
     #d{lvt = NewLvt} = D1,
-    lists:foldl(fun({T, St, Post}, Acc) when T < NewLvt -> commit(T, St, Post, Acc);
-                   (_, Acc) -> Acc
-                end, D1, Passed).
+    ?TIMED(D, ?ST_RED_GVT, lists:foldl(fun({T, St, Post}, Acc) when T < NewLvt -> commit(T, St, Post, Acc);
+                                         (_, Acc) -> Acc
+                                      end, D1, Passed)).
+
+timed(Stats, Stage, Fun) ->
+    T0 = reductions(),
+    Result = Fun(),
+    counters:add(Stats, Stage, reductions() - T0),
+    Result.
 
 %% Post-response at T and the states after it, up to Last.
 chain(T, _St, Last, _D, Passed, States) when T >= Last ->
@@ -276,7 +295,8 @@ write_states([{T0, _} | _] = States, Last,
                 false -> undefined
             end,
     Payload = {Idx, self(), S, T0, Sts, Disps},
-    Plan = plan(cell_spans(States, Disps, D), Sim),
+    %% hashing the states to cells and buckets is collision-checking work
+    Plan = ?TIMED(D, ?ST_RED_TVHT, plan(cell_spans(States, Disps, D), Sim)),
     maybe_delay(D),
     Results = [rw_bucket:lock_probe(Pid, self(), Cells, Payload, Spans) || {_, Pid, Cells, Spans} <- Plan],
     {UpTo, Hits} = case [R || R <- Results, R =/= none] of
@@ -404,7 +424,9 @@ on_antievent(Cid, T, From, #d{contacts = Contacts, lvt = Lvt} = D) ->
 %% Go back to R: delete the states after R from the TVHT, send antievents
 %% for the contacts they had, forget commits from R on.
 roll_back(R, #d{lvt = Lvt} = D) when R >= Lvt -> withdraw(R, D);
-roll_back(R, #d{idx = Idx, hist = Hist, contacts = Contacts, sim = Sim, written = Written} = D) ->
+roll_back(R, D) -> ?TIMED(D, ?ST_RED_ROLLBACK, undo(R, D)).
+
+undo(R, #d{idx = Idx, hist = Hist, contacts = Contacts, sim = Sim, written = Written} = D) ->
     Gone = [T || T <- maps:keys(Hist), T > R],
     %% every bucket holding a state after R, with the cells it holds them in
     Where = lists:foldl(fun({B, Pid, Cells}, Acc) ->
@@ -412,8 +434,9 @@ roll_back(R, #d{idx = Idx, hist = Hist, contacts = Contacts, sim = Sim, written 
                         end, #{}, [X || {_, UpTo, Ws} <- Written, UpTo > R, X <- Ws]),
     maybe_delay(D),
     Plan = lists:sort(maps:to_list(Where)),
-    Lost = lists:append([rw_bucket:lock_delete(Pid, self(), lists:usort(Cells), Idx, R)
-                         || {{_, Pid}, Cells} <- Plan]),
+    %% (the buckets count their own work as TVHT; waiting is not work)
+    Lost = ?TIMED(D, ?ST_RED_ROLLBACK_CALLS, lists:append([rw_bucket:lock_delete(Pid, self(), lists:usort(Cells), Idx, R)
+                                                          || {{_, Pid}, Cells} <- Plan])),
     [rw_bucket:unlock(Pid, self()) || {{_, Pid}, _} <- Plan],
     Written1 = [{T0, min(UpTo, R), Ws} || {T0, UpTo, Ws} <- Written, T0 =< R],
     counters:add(Sim#sim.stats, ?ST_ROLLED_BACK, length(Gone)),
@@ -503,3 +526,7 @@ maybe_delay(#d{delay = MaxMs}) ->
         0 -> ok;
         Ms -> timer:sleep(Ms)
     end.
+
+%% Work done by this process so far (profiling counts reductions, which
+%% preemption does not inflate as it does wall time).
+reductions() -> element(2, erlang:process_info(self(), reductions)).

@@ -15,7 +15,7 @@
 -module(rw_bucket).
 -behaviour(gen_server).
 -include("rigidwarp.hrl").
--export([start_link/3, lock_probe/5, commit_unlock/4, lock_delete/5, unlock/2, gvt/2]).
+-export([start_link/3, lock_probe/5, commit_unlock/4, lock_delete/5, unlock/2, gvt/2, profile/2]).
 -export([init/1, handle_call/3, handle_cast/2, handle_info/2]).
 -export_type([entry/0, payload/0, hit/0, cid/0]).
 
@@ -45,8 +45,12 @@
     by_body = #{} :: #{non_neg_integer() => [{non_neg_integer(), cid()}]},
     contacts = #{} :: #{cid() => {Detector :: pid(), Other :: pid()}},
     probes = #{} :: #{pid() => {payload(), [span()], {non_neg_integer(), [hit()]} | none}},
-    gc_at = 0 :: non_neg_integer()
+    gc_at = 0 :: non_neg_integer(),
+    %% when profiling: the simulation's counters (tvht_reductions is counter 7)
+    profile = undefined :: counters:counters_ref() | undefined
 }).
+
+-define(TVHT_REDS, 7).
 
 -spec start_link(#model{}, pos_integer(), non_neg_integer()) -> {ok, pid()}.
 start_link(Model, Dt, _Index) -> gen_server:start_link(?MODULE, {Model, Dt}, []).
@@ -79,11 +83,24 @@ gvt(Bucket, Gvt) -> gen_server:cast(Bucket, {gvt, Gvt}).
 
 %%% gen_server
 
+%% Count the time this bucket works into Stats (see rw_timewarp:stats/1).
+-spec profile(pid(), counters:counters_ref()) -> ok.
+profile(Bucket, Stats) -> gen_server:cast(Bucket, {profile, Stats}).
+
 -spec init({#model{}, pos_integer()}) -> {ok, #state{}}.
 init({Model, Dt}) -> {ok, #state{model = Model, dt = Dt}}.
 
 -spec handle_call(term(), gen_server:from(), #state{}) -> {reply, term(), #state{}} | {noreply, #state{}}.
-handle_call({lock, Owner, Cells, Op}, From, S) ->
+handle_call(Req, From, #state{profile = undefined} = S) -> call(Req, From, S);
+handle_call(Req, From, #state{profile = Stats} = S) -> timed(Stats, fun() -> call(Req, From, S) end).
+
+timed(Stats, Fun) ->
+    T0 = reductions(),
+    Result = Fun(),
+    counters:add(Stats, ?TVHT_REDS, reductions() - T0),
+    Result.
+
+call({lock, Owner, Cells, Op}, From, S) ->
     case free(Cells, Owner, S#state.locks) of
         true ->
             {Reply, S1} = locked_op(Owner, Op, S#state{locks = take(Cells, Owner, S#state.locks)}),
@@ -93,13 +110,17 @@ handle_call({lock, Owner, Cells, Op}, From, S) ->
     end.
 
 -spec handle_cast(term(), #state{}) -> {noreply, #state{}}.
-handle_cast({commit_unlock, Owner, UpTo, Ids}, S) ->
+handle_cast({profile, Stats}, S) -> {noreply, S#state{profile = Stats}};
+handle_cast(Msg, #state{profile = undefined} = S) -> cast(Msg, S);
+handle_cast(Msg, #state{profile = Stats} = S) -> timed(Stats, fun() -> cast(Msg, S) end).
+
+cast({commit_unlock, Owner, UpTo, Ids}, S) ->
     {noreply, release(Owner, commit(Owner, UpTo, Ids, S))};
-handle_cast({unlock, Owner}, S) ->
+cast({unlock, Owner}, S) ->
     {noreply, release(Owner, S)};
-handle_cast({gvt, Gvt}, #state{gc_at = At} = S) when Gvt < At ->
+cast({gvt, Gvt}, #state{gc_at = At} = S) when Gvt < At ->
     {noreply, S};
-handle_cast({gvt, Gvt}, #state{cells = Cells, by_body = By, contacts = C, dt = Dt} = S) ->
+cast({gvt, Gvt}, #state{cells = Cells, by_body = By, contacts = C, dt = Dt} = S) ->
     Recent = fun(_, Segs) ->
                      case lists:takewhile(fun({_, Tb, _}) -> Tb >= Gvt end, Segs) of
                          [] -> false;
@@ -299,3 +320,7 @@ delete(Idx, R, Owned, #state{cells = Cells, by_body = By, contacts = C} = S) ->
 truncate([{Ta, _, _} | Rest], R) when Ta > R -> truncate(Rest, R);
 truncate([{Ta, Tb, P} | Rest], R) when Tb > R -> [{Ta, R, P} | Rest];
 truncate(Segs, _R) -> Segs.
+
+%% Work done by this process so far (profiling counts reductions, which
+%% preemption does not inflate as it does wall time).
+reductions() -> element(2, erlang:process_info(self(), reductions)).

@@ -80,8 +80,14 @@ handle_call(gvt, _From, S) ->
 handle_cast(_Msg, S) -> {noreply, S}.
 
 -spec handle_info(term(), #s{}) -> {noreply, #s{}} | {stop, term(), #s{}}.
-handle_info({complete, T}, #s{complete = C} = S) ->
+handle_info({complete, T}, #s{complete = C, sim = #sim{profile = false}} = S) ->
     {noreply, advance(S#s{complete = C#{T => true}})};
+handle_info({complete, T}, #s{complete = C, sim = #sim{stats = Stats}} = S) ->
+    T0 = reductions(),
+    S1 = advance(S#s{complete = C#{T => true}}),
+    %% counter 10 is gvt_reductions (rw_timewarp's stat names)
+    counters:add(Stats, 10, reductions() - T0),
+    {noreply, S1};
 handle_info(watchdog, #s{gvt = End, sim = #sim{end_ms = End}} = S) ->
     {noreply, S};
 handle_info(watchdog, #s{last_advance = Last, watchdog_ms = W} = S) ->
@@ -169,3 +175,7 @@ queue(Pid) ->
     end.
 
 now_ms() -> erlang:monotonic_time(millisecond).
+
+%% Work done by this process so far (profiling counts reductions, which
+%% preemption does not inflate as it does wall time).
+reductions() -> element(2, erlang:process_info(self(), reductions)).

@@ -7,13 +7,15 @@
 
 -type handle() :: #{sup := pid(), gvt := pid(), ring := ets:tid(), sim := #sim{}, started := integer()}.
 -type options() :: #{buckets => pos_integer(), owner => pid(), subscribe => boolean(),
-                     watchdog_ms => pos_integer(), ring_size => pos_integer(),
+                     watchdog_ms => pos_integer(), ring_size => pos_integer(), profile => boolean(),
                      delay => {Seed :: integer(), MaxMs :: non_neg_integer()},
                      on_frame => fun((rw_reference:frame()) -> any()),
                      on_progress => fun((map()) -> any())}.
 
 -define(STAT_NAMES, [events, antievents, primary_rollbacks, secondary_rollbacks,
-                     rolled_back_substeps, computed_substeps]).
+                     rolled_back_substeps, computed_substeps,
+                     tvht_reductions, integrate_reductions, rollback_reductions, gvt_reductions, rollback_calls_reductions]).
+-define(PROFILE_NAMES, [tvht_reductions, integrate_reductions, rollback_reductions, gvt_reductions, rollback_calls_reductions]).
 
 -spec default_buckets() -> pos_integer().
 default_buckets() -> 64.
@@ -33,6 +35,7 @@ start(#scene{spheres = Spheres, initial = Initial, duration_ms = End} = Scene, O
             Sim = #sim{scene = Scene, n = length(Spheres), end_ms = End, buckets = Buckets, gvt = Gvt,
                        records = Records, counts = Counts, ring = Ring,
                        stats = counters:new(length(?STAT_NAMES), [write_concurrency]),
+                       profile = maps:get(profile, Opts, false),
                        lvts = atomics:new(lvt_slot(lists:max([0 | [I || #sphere{idx = I} <- Spheres]])), [{signed, false}])},
             Bodies = [begin
                           {ok, Pid} = supervisor:start_child(BodySup, [Sim, Sphere, St]),
@@ -42,6 +45,8 @@ start(#scene{spheres = Spheres, initial = Initial, duration_ms = End} = Scene, O
                 {ok, {Seed, MaxMs}} -> [P ! {delay, Seed + I, MaxMs} || {I, P} <- lists:zip(lists:seq(1, length(Bodies)), Bodies)];
                 error -> ok
             end,
+            Sim#sim.profile andalso lists:foreach(fun(B) -> rw_bucket:profile(B, Sim#sim.stats) end,
+                                                  tuple_to_list(Buckets)),
             maps:get(subscribe, Opts, false) andalso rw_gvt:subscribe(Gvt, maps:get(owner, Opts, self())),
             ok = rw_gvt:go(Gvt, Sim, Bodies, Opts),
             [P ! go || P <- Bodies],
@@ -65,8 +70,15 @@ stop(#{sup := Sup}) ->
     ok.
 
 -spec stats(handle()) -> #{atom() => number()}.
-stats(#{sim := #sim{stats = Ref, n = N, end_ms = End, scene = #scene{substep_ms = Dt}}}) ->
-    Raw = maps:from_list(lists:zip(?STAT_NAMES, [counters:get(Ref, I) || I <- lists:seq(1, length(?STAT_NAMES))])),
+stats(#{sim := #sim{stats = Ref, n = N, end_ms = End, scene = #scene{substep_ms = Dt}, profile = Profile}}) ->
+    All = maps:from_list(lists:zip(?STAT_NAMES, [counters:get(Ref, I) || I <- lists:seq(1, length(?STAT_NAMES))])),
+    Raw = case Profile of
+              true ->
+                  %% a rollback's bucket calls are counted by the buckets
+                  #{rollback_reductions := Rb, rollback_calls_reductions := Calls} = All,
+                  maps:remove(rollback_calls_reductions, All#{rollback_reductions := max(0, Rb - Calls)});
+              false -> maps:without(?PROFILE_NAMES, All)
+          end,
     Committed = N * (End div Dt),
     Computed = maps:get(computed_substeps, Raw),
     Raw#{rollbacks => maps:get(primary_rollbacks, Raw) + maps:get(secondary_rollbacks, Raw),

@@ -1,0 +1,152 @@
+%% The paper's experiments (Section 6, Figures 7-10) on the machine it runs
+%% on. Not part of `make test`: `make bench` runs it and then
+%% scripts/plot-bench draws the figures. Every configuration is repeated
+%% (BENCH_REPEATS, default 3) and reported as median, min and max; speedups
+%% are ratios of runs made in the same repeat. BENCH_MS (default 1000) is
+%% the simulated time of each run. Results: doc/bench/*.csv and results.json.
+-module(rw_bench_SUITE).
+-include_lib("common_test/include/ct.hrl").
+-export([all/0, suite/0, init_per_suite/1, end_per_suite/1]).
+-export([fig7_speedup/1, fig8_breakdown/1, fig9_density/1, fig10_stride/1]).
+
+suite() -> [{timetrap, {hours, 3}}].
+
+all() -> [fig7_speedup, fig8_breakdown, fig9_density, fig10_stride].
+
+init_per_suite(Config) ->
+    {ok, _} = application:ensure_all_started(rigidwarp),
+    ok = filelib:ensure_dir(filename:join(out_dir(), "x")),
+    [{ms, env_int("BENCH_MS", 1000)}, {repeats, env_int("BENCH_REPEATS", 3)} | Config].
+
+end_per_suite(_Config) ->
+    _ = erlang:system_flag(schedulers_online, erlang:system_info(schedulers)),
+    ok.
+
+%%% Figure 7: speedup against schedulers, over Time Warp on one scheduler
+%%% (the paper's measure) and over the sequential reference (the honest one).
+fig7_speedup(Config) ->
+    Scenes = ["parallel_200", "parallel_500", "cylinders_200", "cylinders_500", "bouncing_200_250",
+              "bouncing_500_250"],
+    Cores = erlang:system_info(schedulers),
+    Rows = lists:append(
+             [begin
+                  Scene = load(Name, Config),
+                  Reps = [begin
+                              Ref = wall(fun() -> rw_reference:run(Scene, #{}) end, Cores),
+                              Tw = [{S, wall(fun() -> rw_timewarp:run(Scene, #{}) end, S)} || S <- lists:seq(1, Cores)],
+                              {Ref, Tw}
+                          end || _ <- lists:seq(1, ?config(repeats, Config))],
+                  [begin
+                       Walls = [proplists:get_value(S, Tw) || {_, Tw} <- Reps],
+                       OverOne = [proplists:get_value(1, Tw) / proplists:get_value(S, Tw) || {_, Tw} <- Reps],
+                       OverRef = [Ref / proplists:get_value(S, Tw) || {Ref, Tw} <- Reps],
+                       [Name, S, median([R || {R, _} <- Reps]) | stats(Walls) ++ stats(OverOne) ++ stats(OverRef)]
+                   end || S <- lists:seq(1, Cores)]
+              end || Name <- Scenes]),
+    write_csv("fig7_speedup.csv", ["scene", "schedulers", "reference_ms", "timewarp_ms", "timewarp_min", "timewarp_max",
+                                   "speedup_vs_1", "speedup_vs_1_min", "speedup_vs_1_max",
+                                   "speedup_vs_reference", "vs_reference_min", "vs_reference_max"], Rows).
+
+%%% Figure 8: where the work goes, counted inside the engine (profile =>
+%%% true) in reductions, the VM's own unit of work, which preemption does
+%%% not inflate as it does wall time: bucket work (TVHT: probes, writes,
+%%% deletes, locks), integration with fixture contacts, rollbacks (the
+%%% bodies' side; their deletes are bucket work), GVT work (commits, frames,
+%%% pruning), and the rest of the run's reductions (messaging, the state
+%%% machines, scheduling of events and acknowledgements).
+fig8_breakdown(Config) ->
+    Cores = erlang:system_info(schedulers),
+    Rows = [begin
+                Scene = load(Name, Config),
+                {R0, _} = erlang:statistics(exact_reductions),
+                {ok, Stats} = with_schedulers(Cores, fun() -> rw_timewarp:run(Scene, #{profile => true}) end),
+                {R1, _} = erlang:statistics(exact_reductions),
+                Parts = [maps:get(K, Stats) || K <- [tvht_reductions, integrate_reductions, rollback_reductions,
+                                                      gvt_reductions]],
+                Total = max(R1 - R0, lists:sum(Parts)),
+                Rest = Total - lists:sum(Parts),
+                [Name | [round(1000 * P / Total) / 10 || P <- Parts ++ [Rest]]]
+            end || Name <- ["parallel_200", "cylinders_200", "bouncing_200_250"]],
+    write_csv("fig8_breakdown.csv", ["scene", "tvht_pct", "integrate_pct", "rollback_pct", "gvt_pct", "rest_pct"], Rows).
+
+%%% Figure 9: density. Bouncing with 200 spheres in boxes of 100 to 400 m^3.
+fig9_density(Config) ->
+    Cores = erlang:system_info(schedulers),
+    Rows = [begin
+                Scene = load(Name, Config),
+                Reps = [{wall(fun() -> rw_reference:run(Scene, #{}) end, Cores),
+                         wall(fun() -> rw_timewarp:run(Scene, #{}) end, 1),
+                         wall(fun() -> rw_timewarp:run(Scene, #{}) end, Cores)}
+                        || _ <- lists:seq(1, ?config(repeats, Config))],
+                {ok, Stats} = with_schedulers(Cores, fun() -> rw_timewarp:run(Scene, #{}) end),
+                [Volume, median([R || {R, _, _} <- Reps]), median([A || {_, A, _} <- Reps])
+                 | stats([B || {_, _, B} <- Reps]) ++ [maps:get(rollbacks, Stats), maps:get(efficiency, Stats)]]
+            end || {Name, Volume} <- [{"bouncing_200_100", 100}, {"bouncing_200_250", 250},
+                                      {"bouncing_200_400", 400}]],
+    write_csv("fig9_density.csv", ["volume_m3", "reference_ms", "timewarp_1_ms", "timewarp_ms", "timewarp_min",
+                                   "timewarp_max", "rollbacks", "efficiency"], Rows).
+
+%%% Figure 10: runtime against the stride LVT_ub - GVT.
+fig10_stride(Config) ->
+    Cores = erlang:system_info(schedulers),
+    Rows = lists:append(
+             [[begin
+                   Scene = load(Name, Config, #{stride => Stride}),
+                   Walls = [wall(fun() -> rw_timewarp:run(Scene, #{}) end, Cores)
+                            || _ <- lists:seq(1, ?config(repeats, Config))],
+                   [Name, Stride | stats(Walls)]
+               end || Stride <- [16, 32, 64, 128, 256, 512]]
+              || Name <- ["parallel_200", "cylinders_200", "bouncing_200_250"]]),
+    write_csv("fig10_stride.csv", ["scene", "stride_ms", "timewarp_ms", "timewarp_min", "timewarp_max"], Rows).
+
+%%% Helpers
+
+load(Name, Config) -> load(Name, Config, #{}).
+load(Name, Config, Extra) ->
+    File = filename:join([root(), "scenarios", Name ++ ".json"]),
+    {ok, Scene} = rigidwarp:load(File, Extra#{until => ?config(ms, Config)}),
+    Scene.
+
+%% Wall time (ms) of Run on S schedulers.
+wall(Run, S) ->
+    with_schedulers(S, fun() ->
+                               T0 = erlang:monotonic_time(microsecond),
+                               {ok, _} = Run(),
+                               (erlang:monotonic_time(microsecond) - T0) / 1000
+                       end).
+
+with_schedulers(N, Fun) ->
+    Old = erlang:system_flag(schedulers_online, N),
+    try Fun() after erlang:system_flag(schedulers_online, Old) end.
+
+median(L) -> lists:nth((length(L) + 1) div 2, lists:sort(L)).
+stats(L) -> [median(L), lists:min(L), lists:max(L)].
+
+env_int(Name, Default) ->
+    case os:getenv(Name) of
+        false -> Default;
+        V -> list_to_integer(V)
+    end.
+
+%% The repository root: the first directory above this file (rebar3 may run
+%% a copy under _build) holding rebar.config and scenarios/.
+root() -> root(filename:dirname(filename:absname(?FILE))).
+root("/") -> error(no_repo_root);
+root(Dir) ->
+    case filelib:is_regular(filename:join(Dir, "rebar.config")) andalso
+         filelib:is_dir(filename:join(Dir, "scenarios")) of
+        true -> Dir;
+        false -> root(filename:dirname(Dir))
+    end.
+
+out_dir() -> filename:join([root(), "doc", "bench"]).
+
+write_csv(Name, Header, Rows) ->
+    Cell = fun(X) when is_float(X) -> io_lib:format("~.4f", [X]);
+              (X) when is_integer(X) -> integer_to_list(X);
+              (X) -> X
+           end,
+    Text = [lists:join(",", Header), $\n | [[lists:join(",", [Cell(C) || C <- R]), $\n] || R <- Rows]],
+    ok = file:write_file(filename:join(out_dir(), Name), Text),
+    ct:log("~s~n~s", [Name, Text]),
+    ok.
