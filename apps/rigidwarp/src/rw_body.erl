@@ -263,21 +263,33 @@ timed(Stats, Stage, Fun) ->
     counters:add(Stats, Stage, reductions() - T0),
     Result.
 
-%% Post-response at T and the states after it, up to Last.
+%% The states after T up to Last, and the post-response at each sync
+%% point passed on the way (to commit).
 chain(T, _St, Last, _D, Passed, States) when T >= Last ->
     {lists:reverse(Passed), lists:reverse(States)};
-chain(T, St, Last, #d{model = M, dt = Dt} = D, Passed, States) ->
+chain(T, St, Last, #d{model = M, dt = Dt, frame_ms = F, stride = S, end_ms = End} = D, Passed, States) ->
     Post = {V, W, U} = rw_dynamics:respond(St, effects(T, St, D)),
     Next = rw_integrate:advance(M, St, V, W, U),
-    chain(T + Dt, Next, Last, D, [{T, St, Post} | Passed], [{T + Dt, Next} | States]).
+    Passed1 = case T rem F =:= 0 orelse T rem S =:= 0 orelse T =:= End of
+                  true -> [{T, St, Post} | Passed];
+                  false -> Passed
+              end,
+    chain(T + Dt, Next, Last, D, Passed1, [{T + Dt, Next} | States]).
 
 %% Effects of every known contact at T, in canonical order of partner.
 effects(T, #st{} = St, #d{model = M, sphere = S, contacts = Contacts, sim = Sim} = D) ->
-    Bodies = [{{PIdx, 0}, E} || {PIdx, E} <- maps:values(maps:get(T, Contacts, #{}))],
+    Bodies = case Contacts of
+                 #{T := AtT} -> [{{PIdx, 0}, E} || {PIdx, E} <- maps:values(AtT)];
+                 _ -> []
+             end,
     Fixed = [{{FIdx, Feature}, rw_response:fixture(M, S, St, C)}
              || #fixture{idx = FIdx, shape = Shape} <- Sim#sim.scene#scene.fixtures,
                 {Feature, C} <- fixture_contacts(St, Shape, D)],
-    [E || {_, E} <- lists:keysort(1, Bodies ++ Fixed)].
+    case Bodies ++ Fixed of
+        [] -> [];
+        [{_, E}] -> [E];
+        All -> [E || {_, E} <- lists:keysort(1, All)]
+    end.
 
 fixture_contacts(#st{p = P}, Shape, #d{model = #model{ccd = false}, sphere = #sphere{radius = R}}) ->
     rw_narrow:sphere_fixture(P, R, Shape);
@@ -289,12 +301,15 @@ fixture_contacts(#st{p = P} = St, Shape, #d{model = #model{ccd = true} = M, sphe
 %% LVT becomes that substep, or Last.
 write_states([{T0, _} | _] = States, Last,
              #d{idx = Idx, sphere = S, model = M, sim = Sim, hist = Hist, written = Written} = D) ->
-    Sts = list_to_tuple([St || {_, St} <- States]),
-    Disps = case M#model.ccd of
-                true -> list_to_tuple([rw_integrate:free_displacement(M, St) || {_, St} <- States]);
-                false -> undefined
-            end,
-    Payload = {Idx, self(), S, T0, Sts, Disps},
+    StList = [St || {_, St} <- States],
+    DispList = case M#model.ccd of
+                   true -> [rw_integrate:free_displacement(M, St) || St <- StList];
+                   false -> undefined
+               end,
+    Sts = list_to_tuple(StList),
+    Disps = case DispList of undefined -> undefined; _ -> list_to_tuple(DispList) end,
+    Payload = {Idx, self(), S, T0, rw_states:pack(StList, DispList, M#model.rotation, M#model.ccd),
+               bounds(Sts, Disps, S#sphere.radius)},
     %% hashing the states to cells and buckets is collision-checking work
     Plan = ?TIMED(D, ?ST_RED_TVHT, plan(cell_spans(States, Disps, D), Sim)),
     maybe_delay(D),
@@ -308,9 +323,10 @@ write_states([{T0, _} | _] = States, Last,
                    end,
     Ids = maps:from_list([{OIdx, {UpTo, min(Idx, OIdx), max(Idx, OIdx), make_ref()}} || {OIdx, _} <- Hits]),
     [rw_bucket:commit_unlock(Pid, self(), UpTo, Ids) || {_, Pid, _, _} <- Plan],
-    Hist1 = lists:foldl(fun({T, St}, H) when T =< UpTo -> H#{T => St};
-                           (_, H) -> H
-                        end, Hist, States),
+    Hist1 = case Hits of
+                [] -> maps:merge(Hist, maps:from_list(States));
+                _ -> maps:merge(Hist, maps:from_list([TS || {T, _} = TS <- States, T =< UpTo]))
+            end,
     Where = [{B, Pid, Cells} || {B, Pid, Cells, _} <- Plan],
     MaxWindow = max(1, D#d.stride div D#d.dt),
     Window = case Hits of
@@ -320,18 +336,45 @@ write_states([{T0, _} | _] = States, Last,
     D1 = D#d{hist = Hist1, lvt = UpTo, written = [{T0, UpTo, Where} | Written], window = Window},
     publish_lvt(send_events(UpTo, Hits, Ids, D1)).
 
+%% A box that holds the sphere at every state of a step (swept over each
+%% substep with CCD), padded against rounding: the buckets skip the
+%% narrowphase for two writes whose boxes are apart.
+bounds(Sts, Disps, R) ->
+    #st{p = {X, Y, Z}} = element(1, Sts),
+    {X0, Y0, Z0, X1, Y1, Z1} = extend(1, Sts, Disps, X, Y, Z, X, Y, Z),
+    Pad = R + 1.0e-9 * (R + lists:max([abs(X0), abs(Y0), abs(Z0), abs(X1), abs(Y1), abs(Z1)])),
+    {X0 - Pad, Y0 - Pad, Z0 - Pad, X1 + Pad, Y1 + Pad, Z1 + Pad}.
+
+extend(I, Sts, _Disps, X0, Y0, Z0, X1, Y1, Z1) when I > tuple_size(Sts) -> {X0, Y0, Z0, X1, Y1, Z1};
+extend(I, Sts, Disps, X0, Y0, Z0, X1, Y1, Z1) ->
+    #st{p = {X, Y, Z}} = element(I, Sts),
+    {Xa, Ya, Za, Xb, Yb, Zb} = case Disps of
+                                   undefined -> {X, Y, Z, X, Y, Z};
+                                   _ -> {DX, DY, DZ} = element(I, Disps),
+                                        {min(X, X + DX), min(Y, Y + DY), min(Z, Z + DZ),
+                                         max(X, X + DX), max(Y, Y + DY), max(Z, Z + DZ)}
+                               end,
+    extend(I + 1, Sts, Disps, min(X0, Xa), min(Y0, Ya), min(Z0, Za), max(X1, Xb), max(Y1, Yb), max(Z1, Zb)).
+
 %% For each cell touched during the step, the first and last substep at
 %% which the body's box (swept with CCD) touches it. Boxes seldom change
-%% between substeps, so cells are enumerated only when they do.
-cell_spans([{T0, St0} | Rest], Disps, D) ->
-    spans(Rest, 2, Disps, box(St0, disp_at(Disps, 1), D), T0, T0, D, #{}).
+%% between substeps, so cells are enumerated only when they do, and a box
+%% is hashed again only when it leaves the region that keeps its cells.
+cell_spans([{T0, St0} | Rest], Disps, #d{sim = #sim{scene = #scene{cell_size = C}}} = D) ->
+    Box = rw_hash:box(aabb(St0, disp_at(Disps, 1), D), C),
+    spans(Rest, 2, Disps, Box, rw_hash:region(Box, C), T0, T0, D, #{}).
 
-spans([], _I, _Disps, Box, Ta, Tb, _D, Acc) ->
+spans([], _I, _Disps, Box, _Region, Ta, Tb, _D, Acc) ->
     add_run(Box, Ta, Tb, Acc);
-spans([{T, St} | Rest], I, Disps, Box, Ta, Tb, D, Acc) ->
-    case box(St, disp_at(Disps, I), D) of
-        Box -> spans(Rest, I + 1, Disps, Box, Ta, T, D, Acc);
-        New -> spans(Rest, I + 1, Disps, New, T, T, D, add_run(Box, Ta, Tb, Acc))
+spans([{T, St} | Rest], I, Disps, Box, Region, Ta, Tb, #d{sim = #sim{scene = #scene{cell_size = C}}} = D, Acc) ->
+    AABB = aabb(St, disp_at(Disps, I), D),
+    case rw_hash:in_region(AABB, Region) of
+        true -> spans(Rest, I + 1, Disps, Box, Region, Ta, T, D, Acc);
+        false ->
+            case rw_hash:box(AABB, C) of
+                Box -> spans(Rest, I + 1, Disps, Box, Region, Ta, T, D, Acc);
+                New -> spans(Rest, I + 1, Disps, New, rw_hash:region(New, C), T, T, D, add_run(Box, Ta, Tb, Acc))
+            end
     end.
 
 add_run(Box, Ta, Tb, Acc) ->
@@ -344,10 +387,8 @@ add_run(Box, Ta, Tb, Acc) ->
 disp_at(undefined, _) -> undefined;
 disp_at(Disps, I) -> element(I, Disps).
 
-box(#st{p = P}, undefined, #d{sphere = #sphere{radius = R}, sim = #sim{scene = #scene{cell_size = C}}}) ->
-    rw_hash:box(rw_shape:sphere_aabb(P, R), C);
-box(#st{p = P}, Disp, #d{sphere = #sphere{radius = R}, sim = #sim{scene = #scene{cell_size = C}}}) ->
-    rw_hash:box(rw_shape:swept_aabb(P, Disp, R), C).
+aabb(#st{p = P}, undefined, #d{sphere = #sphere{radius = R}}) -> rw_shape:sphere_aabb(P, R);
+aabb(#st{p = P}, Disp, #d{sphere = #sphere{radius = R}}) -> rw_shape:swept_aabb(P, Disp, R).
 
 %% Group cell spans by bucket, in bucket order (the lock order):
 %% [{BucketIndex, Pid, Cells, [{Cell, Ta, Tb}]}].

@@ -17,12 +17,14 @@
 -include("rigidwarp.hrl").
 -export([start_link/3, lock_probe/5, commit_unlock/4, lock_delete/5, unlock/2, gvt/2, profile/2]).
 -export([init/1, handle_call/3, handle_cast/2, handle_info/2]).
--export_type([entry/0, payload/0, hit/0, cid/0]).
+-export_type([entry/0, payload/0, bounds/0, hit/0, cid/0]).
 
 %% One step's states of one body: T0 is the LVT of the first state,
-%% States (and, with CCD, the free displacements) hold one per substep.
+%% States (and, with CCD, the free displacements) hold one per substep,
+%% Bounds is a box that holds the sphere (swept, with CCD) at all of them.
 -type payload() :: {Idx :: non_neg_integer(), pid(), #sphere{}, T0 :: non_neg_integer(),
-                    States :: tuple(), Disps :: tuple() | undefined}.
+                    States :: rw_states:packed(), Bounds :: bounds()}.
+-type bounds() :: {float(), float(), float(), float(), float(), float()}.
 %% A cell touched from Ta to Tb (substeps of the payload).
 -type span() :: {rw_hash:cell(), Ta :: non_neg_integer(), Tb :: non_neg_integer()}.
 %% One body's state at one LVT, as the narrowphase sees it.
@@ -36,6 +38,7 @@
     model :: #model{},
     dt :: pos_integer(),                     % substep, ms
     locks = #{} :: #{rw_hash:cell() => pid()},
+    held = #{} :: #{pid() => [rw_hash:cell()]},   % the same locks by owner
     waiting = [] :: [{gen_server:from(), pid(), [rw_hash:cell()], term()}],
     %% per cell, per body, that body's segments newest first: a body writes
     %% forward in time and a rollback cuts the newest ones, so each list is
@@ -103,7 +106,7 @@ timed(Stats, Fun) ->
 call({lock, Owner, Cells, Op}, From, S) ->
     case free(Cells, Owner, S#state.locks) of
         true ->
-            {Reply, S1} = locked_op(Owner, Op, S#state{locks = take(Cells, Owner, S#state.locks)}),
+            {Reply, S1} = locked_op(Owner, Op, take(Cells, Owner, S)),
             {reply, Reply, S1};
         false ->
             {noreply, S#state{waiting = S#state.waiting ++ [{From, Owner, Cells, Op}]}}
@@ -156,11 +159,16 @@ free(Cells, Owner, Locks) ->
                             _ -> true
                         end end, Cells).
 
-take(Cells, Owner, Locks) -> lists:foldl(fun(C, L) -> L#{C => Owner} end, Locks, Cells).
+take(Cells, Owner, #state{locks = Locks, held = Held} = S) ->
+    S#state{locks = lists:foldl(fun(C, L) -> L#{C => Owner} end, Locks, Cells),
+            held = Held#{Owner => Cells ++ maps:get(Owner, Held, [])}}.
 
 %% Drop Owner's locks and grant waiting requests that now fit, in order.
-release(Owner, #state{locks = Locks} = S) ->
-    grant(S#state{locks = maps:filter(fun(_, O) -> O =/= Owner end, Locks)}).
+release(Owner, #state{locks = Locks, held = Held} = S) ->
+    case maps:take(Owner, Held) of
+        {Cells, Held1} -> grant(S#state{locks = maps:without(Cells, Locks), held = Held1});
+        error -> grant(S)
+    end.
 
 grant(#state{waiting = []} = S) -> S;
 grant(#state{waiting = Waiting} = S) -> grant(Waiting, [], S).
@@ -169,7 +177,7 @@ grant([], Kept, S) -> S#state{waiting = lists:reverse(Kept)};
 grant([{From, Owner, Cells, Op} = W | Rest], Kept, S) ->
     case free(Cells, Owner, S#state.locks) of
         true ->
-            {Reply, S1} = locked_op(Owner, Op, S#state{locks = take(Cells, Owner, S#state.locks)}),
+            {Reply, S1} = locked_op(Owner, Op, take(Cells, Owner, S)),
             gen_server:reply(From, Reply),
             grant(Rest, Kept, S1);
         false ->
@@ -185,39 +193,56 @@ locked_op(_Owner, {delete, Idx, R, Cells}, S) ->
     delete(Idx, R, Cells, S).
 
 %% The earliest LVT at which the payload touches another body's state in
-%% one of its cells, with every contact at that LVT.
+%% one of its cells, with every contact at that LVT. A pair of writes often
+%% shares several cells: their windows are merged first, so that each pair
+%% is checked once, and not at all when their bounds are apart.
 probe({Idx, _, _, _, _, _} = Mine, Spans, #state{cells = Cells} = S) ->
-    lists:foldl(
-      fun({Cell, Ta, Tb}, Best) ->
-              case Cells of
-                  #{Cell := ByIdx} ->
-                      maps:fold(fun(OIdx, _, B) when OIdx =:= Idx -> B;
-                                   (_, Segs, B) -> probe_segs(Segs, Ta, Tb, Mine, B, S)
-                                end, Best, ByIdx);
-                  _ -> Best
-              end
-      end, none, Spans).
+    Windows = lists:foldl(
+                fun({Cell, Ta, Tb}, Acc) ->
+                        case Cells of
+                            #{Cell := ByIdx} ->
+                                maps:fold(fun(OIdx, _, A) when OIdx =:= Idx -> A;
+                                             (_, Segs, A) -> windows(Segs, Ta, Tb, A)
+                                          end, Acc, ByIdx);
+                            _ -> Acc
+                        end
+                end, #{}, Spans),
+    maps:fold(fun(_, {Other, Lo, Hi}, Best) ->
+                      case apart(Mine, Other) of
+                          true -> Best;
+                          false -> scan(Lo, bound(Hi, Best), Mine, Other, Best, S)
+                      end
+              end, none, Windows).
 
 %% One other body's segments in a cell, newest first: skip those after the
-%% window, stop at the first one before it.
-probe_segs([], _Ta, _Tb, _Mine, Best, _S) -> Best;
-probe_segs([{_, OTb, _} | _], Ta, _Tb, _Mine, Best, _S) when OTb < Ta -> Best;
-probe_segs([{OTa, OTb, Other} | Rest], Ta, Tb, Mine, Best, S) ->
+%% window, stop at the first one before it; merge each overlap into the
+%% window of its write.
+windows([], _Ta, _Tb, Acc) -> Acc;
+windows([{_, OTb, _} | _], Ta, _Tb, Acc) when OTb < Ta -> Acc;
+windows([{OTa, _, _} | Rest], Ta, Tb, Acc) when OTa > Tb -> windows(Rest, Ta, Tb, Acc);
+windows([{OTa, OTb, {OIdx, _, _, OT0, _, _} = Other} | Rest], Ta, Tb, Acc) ->
     Lo = max(Ta, OTa),
-    Hi = case Best of
-             none -> min(Tb, OTb);
-             {BT, _} -> min(BT, min(Tb, OTb))
-         end,
-    case Lo =< Hi of
-        true -> probe_segs(Rest, Ta, Tb, Mine, scan(Lo, Hi, Mine, Other, Best, S), S);
-        false -> probe_segs(Rest, Ta, Tb, Mine, Best, S)
-    end.
+    Hi = min(Tb, OTb),
+    Key = {OIdx, OT0},
+    Acc1 = case Acc of
+               #{Key := {_, L, H}} -> Acc#{Key := {Other, min(L, Lo), max(H, Hi)}};
+               _ -> Acc#{Key => {Other, Lo, Hi}}
+           end,
+    windows(Rest, Ta, Tb, Acc1).
+
+bound(Hi, none) -> Hi;
+bound(Hi, {BT, _}) -> min(Hi, BT).
+
+%% The two writes' bounds do not overlap: they cannot touch.
+apart({_, _, _, _, _, {AX0, AY0, AZ0, AX1, AY1, AZ1}}, {_, _, _, _, _, {BX0, BY0, BZ0, BX1, BY1, BZ1}}) ->
+    AX1 < BX0 orelse BX1 < AX0 orelse AY1 < BY0 orelse BY1 < AY0 orelse AZ1 < BZ0 orelse BZ1 < AZ0.
 
 %% First LVT in [Lo, Hi] at which the two bodies touch. Without CCD the
 %% test is a plain distance check on the stored positions; the contact
 %% itself is computed in canonical order only on a hit.
-scan(Lo, Hi, {_, _, #sphere{radius = RA}, T0A, StsA, undefined} = Mine,
-     {_, _, #sphere{radius = RB}, T0B, StsB, undefined} = Other, Best, #state{dt = Dt} = S) ->
+scan(Lo, Hi, _Mine, _Other, Best, _S) when Lo > Hi -> Best;
+scan(Lo, Hi, {_, _, #sphere{radius = RA}, T0A, StsA, _} = Mine,
+     {_, _, #sphere{radius = RB}, T0B, StsB, _} = Other, Best, #state{dt = Dt, model = #model{ccd = false}} = S) ->
     Sum = RA + RB,
     case first_touch((Lo - T0A) div Dt + 1, (Lo - T0B) div Dt + 1, (Hi - Lo) div Dt, StsA, StsB, Sum * Sum) of
         none -> Best;
@@ -231,8 +256,8 @@ scan(T, Hi, Mine, Other, Best, #state{model = M, dt = Dt} = S) ->
     end.
 
 first_touch(IA, IB, Left, StsA, StsB, Sum2) ->
-    #st{p = {XA, YA, ZA}} = element(IA, StsA),
-    #st{p = {XB, YB, ZB}} = element(IB, StsB),
+    {XA, YA, ZA} = rw_states:position(StsA, IA),
+    {XB, YB, ZB} = rw_states:position(StsB, IB),
     DX = XB - XA, DY = YB - YA, DZ = ZB - ZA,
     case DX * DX + DY * DY + DZ * DZ < Sum2 of
         true -> 0;
@@ -257,10 +282,9 @@ hit(T, Mine, Other, Best, #state{model = M, dt = Dt}) ->
         _ -> {T, [Hit]}
     end.
 
-entry({Idx, Pid, Sphere, T0, States, Disps}, T, Dt) ->
+entry({Idx, Pid, Sphere, T0, States, _}, T, Dt) ->
     I = (T - T0) div Dt + 1,
-    Disp = case Disps of undefined -> undefined; _ -> element(I, Disps) end,
-    {Idx, Pid, Sphere, element(I, States), Disp}.
+    {Idx, Pid, Sphere, rw_states:state(States, I), rw_states:displacement(States, I)}.
 
 %% Narrowphase in canonical order: the lower index first.
 contact(M, {IA, _, _, _, _} = A, {IB, _, _, _, _} = B) when IA < IB -> narrow(M, A, B);

@@ -37,8 +37,11 @@ start(#scene{spheres = Spheres, initial = Initial, duration_ms = End} = Scene, O
                        stats = counters:new(length(?STAT_NAMES), [write_concurrency]),
                        profile = maps:get(profile, Opts, false),
                        lvts = atomics:new(lvt_slot(lists:max([0 | [I || #sphere{idx = I} <- Spheres]])), [{signed, false}])},
+            %% every body holds the simulation record: not the whole scene's
+            %% bodies, which it never reads (a copy per body fills the heaps)
+            BodySim = Sim#sim{scene = Scene#scene{spheres = [], initial = []}},
             Bodies = [begin
-                          {ok, Pid} = supervisor:start_child(BodySup, [Sim, Sphere, St]),
+                          {ok, Pid} = supervisor:start_child(BodySup, [BodySim, Sphere, St]),
                           Pid
                       end || {Sphere, St} <- lists:zip(Spheres, Initial)],
             _ = case maps:find(delay, Opts) of

@@ -1,12 +1,17 @@
 %% Volumetric hashing: which integer cells of Z^3 a box touches, and which
 %% bucket of a pool owns a cell. Cells are unbounded (bignums far away).
 -module(rw_hash).
--export([cells/2, cell_of/2, bucket/2, box/2, box_cells/1]).
--export_type([cell/0, box/0]).
+-export([cells/2, cell_of/2, bucket/2, box/2, box_cells/1, region/2, in_region/2]).
+-export_type([cell/0, box/0, region/0]).
 
 -type cell() :: {integer(), integer(), integer()}.
 %% The integer ranges of cells an AABB touches: {X0, X1, Y0, Y1, Z0, Z1}.
 -type box() :: {integer(), integer(), integer(), integer(), integer(), integer()}.
+%% Where an AABB's corners may lie for box/2 to give the same box: for each
+%% axis, the range of the low corner and of the high corner, shrunk by a
+%% margin far above rounding, {Lo0, Lo1, Hi0, Hi1} per axis in x, y, z order.
+-type region() :: {float(), float(), float(), float(), float(), float(),
+                   float(), float(), float(), float(), float(), float()}.
 
 %% Every cell of side CellSize that the box touches, in lexicographic
 %% order (the order in which the TVHT locks them, Lemma 1).
@@ -31,3 +36,39 @@ cell_of({X, Y, Z}, S) -> {idx(X, S), idx(Y, S), idx(Z, S)}.
 bucket({X, Y, Z}, N) -> erlang:phash2({X bsr 2, Y bsr 2, Z bsr 2}, N).
 
 idx(X, S) -> floor(X / S).
+
+%% The region in which an AABB keeps Box (see region()): comparing corners
+%% with it is much cheaper than hashing them again, and a box near a cell
+%% border falls outside it and is hashed exactly.
+-spec region(box(), float()) -> region().
+region({X0, X1, Y0, Y1, Z0, Z1}, S) ->
+    {Ax, Bx} = within(X0, S), {Cx, Dx} = within(X1, S),
+    {Ay, By} = within(Y0, S), {Cy, Dy} = within(Y1, S),
+    {Az, Bz} = within(Z0, S), {Cz, Dz} = within(Z1, S),
+    {Ax, Bx, Cx, Dx, Ay, By, Cy, Dy, Az, Bz, Cz, Dz}.
+
+%% Float division is monotonic, so if the ends map to cell I, every value
+%% between them does. Start from the exact borders (grid scenes put spheres
+%% right on them) and step inside when rounding puts them in a neighbour.
+within(I, S) ->
+    M = 1.0e-12 * (abs(I) + 1),
+    Lo = first_in(I, S, [I * S, (I + M) * S]),
+    Hi = first_in(I, S, [(I + 1 - M) * S]),
+    case {Lo, Hi} of
+        {none, _} -> {1.0, -1.0};               % empty: always hash again
+        {_, none} -> {1.0, -1.0};
+        _ -> {Lo, Hi}
+    end.
+
+first_in(_I, _S, []) -> none;
+first_in(I, S, [V | Rest]) ->
+    case idx(V, S) =:= I of
+        true -> float(V);
+        false -> first_in(I, S, Rest)
+    end.
+
+-spec in_region(rw_shape:aabb(), region()) -> boolean().
+in_region({{X0, Y0, Z0}, {X1, Y1, Z1}}, {Ax, Bx, Cx, Dx, Ay, By, Cy, Dy, Az, Bz, Cz, Dz}) ->
+    X0 >= Ax andalso X0 =< Bx andalso X1 >= Cx andalso X1 =< Dx andalso
+        Y0 >= Ay andalso Y0 =< By andalso Y1 >= Cy andalso Y1 =< Dy andalso
+        Z0 >= Az andalso Z0 =< Bz andalso Z1 >= Cz andalso Z1 =< Dz.

@@ -10,7 +10,7 @@
 
 -export([prop_pair_momentum/0, prop_pair_angular_momentum/0, prop_pair_energy/0, prop_fixture_energy/0,
          prop_restitution_law/0, prop_friction_coulomb/0, prop_pair_symmetric_and_repeatable/0,
-         prop_hash_covers_aabb/0, prop_normals_unit/0, prop_depth_along_normal/0,
+         prop_hash_covers_aabb/0, prop_hash_region_keeps_box/0, prop_normals_unit/0, prop_depth_along_normal/0,
          prop_cylinder_depth_along_normal/0, prop_swept_toi/0,
          prop_degenerate_input/0, prop_quat_integrate/0, prop_free_flight/0,
          prop_respond_is_ordered_fold/0]).
@@ -379,6 +379,34 @@ prop_hash_covers_aabb() ->
                               andalso lists:all(fun(B) -> is_integer(B) andalso B >= 0 andalso B < NBuckets end,
                                                 Buckets))
             end)).
+
+%% An AABB whose corners are in the region of a box hashes to that box: the
+%% region is what lets a body skip hashing a state again. Corners are moved
+%% by nothing, by a float step, by a fraction of a cell, or onto the exact
+%% cell borders (where grid scenes put spheres).
+prop_hash_region_keeps_box() ->
+    ?FORALL({{Min, Max, S}, Moves}, {hash_box(), vector(6, corner_move())},
+            ?SAFE(begin
+                Box = rw_hash:box({Min, Max}, S),
+                Region = rw_hash:region(Box, S),
+                [A, B, C, D, E, F] = [move(X, M, S) || {X, M} <- lists:zip(tuple_to_list(Min) ++ tuple_to_list(Max), Moves)],
+                Moved = {{A, B, C}, {D, E, F}},
+                Inside = rw_hash:in_region(Moved, Region),
+                ?WHENFAIL(report("AABB ~p cell ~p: box ~p region ~p; moved ~p in region: ~p, box ~p",
+                                 [{Min, Max}, S, Box, Region, Moved, Inside, rw_hash:box(Moved, S)]),
+                          (not Inside) orelse rw_hash:box(Moved, S) =:= Box)
+            end)).
+
+corner_move() -> oneof([none, {steps, range(-2, 2)}, {frac, float(-1.0, 1.0)}, border_low, border_high,
+                         {off_border, oneof([border_low, border_high]), range(-3, 3)}]).
+
+move(X, none, _S) -> X;
+move(X, {steps, N}, _S) when N >= 0 -> next_float(X, N);
+move(X, {steps, N}, _S) -> -next_float(-X, -N);
+move(X, {frac, F}, S) -> X + F * S;
+move(X, border_low, S) -> float(floor(X / S)) * S;
+move(X, border_high, S) -> float(floor(X / S) + 1) * S;
+move(X, {off_border, Border, Steps}, S) -> move(move(X, Border, S), {steps, Steps}, S).
 
 %% {Min, Max, CellSize}: ordinary boxes, boxes around 1e9, and boxes near
 %% 2e18..4e18 whose cell indices are bignums (extent at most one float step
