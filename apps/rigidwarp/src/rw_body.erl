@@ -56,6 +56,8 @@
     written = [] :: [{non_neg_integer(), non_neg_integer(), [{non_neg_integer(), pid(), [rw_hash:cell()]}]}],
     %% bodies touched recently, for the neighbour rule (see step/3)
     partners = #{} :: #{non_neg_integer() => pid()},
+    %% the latest substep at which this body touched each partner
+    touched = #{} :: #{non_neg_integer() => non_neg_integer()},
     %% bodies waiting for this one to reach an LVT: Pid => LVT
     watchers = #{} :: #{pid() => non_neg_integer()},
     watching = none :: none | {non_neg_integer(), non_neg_integer()},
@@ -207,18 +209,24 @@ settle(D) -> {next_state, step, D, [{timeout, 0, step}]}.
 -define(RECENT_SUBSTEPS, 8).
 
 %% {Limit, Idx, Pid}: how far the slowest body touched in the last few
-%% substeps lets this one go (its LVT plus one substep), or none.
-neighbour_limit(#d{contacts = Contacts}) when map_size(Contacts) =:= 0 -> none;
-neighbour_limit(#d{lvt = Lvt, dt = Dt, contacts = Contacts, partners = Partners, sim = #sim{lvts = Lvts}}) ->
-    Recent = lists:usort([PIdx || K <- lists:seq(0, ?RECENT_SUBSTEPS - 1), T <- [Lvt - K * Dt], T >= 0,
-                                  {PIdx, _} <- maps:values(maps:get(T, Contacts, #{}))]),
-    lists:foldl(fun(PIdx, Best) ->
-                        L = atomics:get(Lvts, rw_timewarp:lvt_slot(PIdx)) + Dt,
-                        case Best of
-                            {BL, _, _} when BL =< L -> Best;
-                            _ -> {L, PIdx, maps:get(PIdx, Partners)}
-                        end
-                end, none, Recent).
+%% substeps lets this one go (its LVT plus one substep), or none. Touches
+%% are remembered by partner (the latest substep); one undone by a rollback
+%% may hold the body back a little longer than needed, never less.
+neighbour_limit(#d{touched = Touched}) when map_size(Touched) =:= 0 -> none;
+neighbour_limit(#d{lvt = Lvt, dt = Dt, touched = Touched, partners = Partners, sim = #sim{lvts = Lvts}}) ->
+    Since = Lvt - ?RECENT_SUBSTEPS * Dt,
+    maps:fold(fun(PIdx, T, Best) when T > Since ->
+                      L = atomics:get(Lvts, rw_timewarp:lvt_slot(PIdx)) + Dt,
+                      case Best of
+                          {BL, BIdx, _} when BL < L; BL =:= L, BIdx < PIdx -> Best;
+                          _ -> {L, PIdx, maps:get(PIdx, Partners)}
+                      end;
+                 (_, _, Best) -> Best
+              end, none, Touched).
+
+%% Forget touches too old to matter (now and then: at each stride's GC).
+forget_touches(Since, #d{touched = Touched} = D) ->
+    D#d{touched = maps:filter(fun(_, T) -> T > Since end, Touched)}.
 
 %% Ask PIdx to tell us when it reaches our LVT (once per wait).
 watch(PIdx, _PPid, #d{lvt = Lvt, watching = {PIdx, Lvt}} = D) -> D;
@@ -416,7 +424,14 @@ send_events(T, Hits, Ids, #d{idx = Idx, sphere = S, model = M, hist = Hist, cont
                      end, {maps:get(T, Contacts, #{}), D#d.pend_ev}, Hits),
     counters:add(D#d.sim#sim.stats, ?ST_EVENTS, length(Hits)),
     Partners = maps:merge(D#d.partners, maps:from_list([{OIdx, OPid} || {OIdx, {{_, OPid, _, _, _}, _}} <- Hits])),
-    D#d{contacts = Contacts#{T => Mine}, pend_ev = Pend, partners = Partners}.
+    Touched = lists:foldl(fun({OIdx, _}, Acc) -> touch(OIdx, T, Acc) end, D#d.touched, Hits),
+    D#d{contacts = Contacts#{T => Mine}, pend_ev = Pend, partners = Partners, touched = Touched}.
+
+touch(PIdx, T, Touched) ->
+    case Touched of
+        #{PIdx := Last} when Last >= T -> Touched;
+        _ -> Touched#{PIdx => T}
+    end.
 
 swap({A, B}) -> {B, A}.
 
@@ -434,7 +449,7 @@ on_event(Cid, T, FromIdx, From, Effect, #d{ghosts = Ghosts, lvt = Lvt, contacts 
             D;
         error ->
             D1 = D#d{contacts = Contacts#{T => (maps:get(T, Contacts, #{}))#{Cid => {FromIdx, Effect}}},
-                     partners = (D#d.partners)#{FromIdx => From}},
+                     partners = (D#d.partners)#{FromIdx => From}, touched = touch(FromIdx, T, D#d.touched)},
             D2 = case T < Lvt of
                      true -> counters:add(D#d.sim#sim.stats, ?ST_PRIMARY, 1),
                              roll_back(T, D1);
@@ -547,7 +562,7 @@ withdraw(T, #d{committed = Committed, sim = Sim, idx = Idx} = D) ->
 on_gvt(G, #d{gc_at = At} = D) when G < At -> D#d{gvt = G};
 on_gvt(G, #d{hist = Hist, contacts = Contacts, committed = Committed, written = Written, stride = Stride} = D) ->
     Keep = fun(T, _) -> T >= G end,
-    D#d{gvt = G, hist = maps:filter(Keep, Hist), contacts = maps:filter(Keep, Contacts),
+    (forget_touches(G - ?RECENT_SUBSTEPS * D#d.dt, D))#d{gvt = G, hist = maps:filter(Keep, Hist), contacts = maps:filter(Keep, Contacts),
         committed = [T || T <- Committed, T > G], written = [W || {_, UpTo, _} = W <- Written, UpTo >= G],
         gc_at = G + Stride}.
 

@@ -193,6 +193,10 @@ cylinder(P, R, C, Axis, CR, H) ->
                     Sign = case H0 >= 0.0 of true -> -1.0; false -> 1.0 end,
                     [{0, #contact{n = rw_vec:scale(Axis, Sign), depth = R + Cap}}]
             end;
+        false when RL > (CR + R) * (1.0 + 1.0e-9); abs(H0) > (H + R) * (1.0 + 1.0e-9) ->
+            %% farther than R from the side or beyond the caps (with a margin
+            %% far above rounding): no contact, without finding the closest point
+            [];
         false ->
             HC = clamp(H0, -H, H),
             RadialC = case RL > CR of
