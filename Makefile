@@ -2,7 +2,7 @@
 REBAR ?= rebar3
 ESCRIPT = _build/default/bin/rigidwarp
 
-.PHONY: all deps build test viewer-test bench run shell clean
+.PHONY: all deps build test viewer-test bench accuracy run shell clean
 
 all: build
 
@@ -21,11 +21,17 @@ test: build
 viewer-test: build
 	@scripts/viewer-test
 
-# The paper's Figures 7-10 on this machine (minutes; not part of make test).
+# The paper's Figures 7-10 on this machine, then `make accuracy` (minutes; not part of make test).
 # BENCH_MS: simulated ms per run (default 1000); BENCH_REPEATS (default 3).
 bench: build
 	BENCH_MS=$${BENCH_MS:-1000} BENCH_REPEATS=$${BENCH_REPEATS:-3} $(REBAR) ct --dir bench --suite rw_bench_SUITE
 	@scripts/plot-bench
+	$(ESCRIPT) bench accuracy
+
+# Speed versus accuracy (about 2 minutes): substep x stride x integrator x CCD on the
+# analytic scenes against their exact solution; doc/bench/accuracy.csv and .png.
+accuracy: build
+	$(ESCRIPT) bench accuracy
 
 # The first thing to try: a scene end to end with a progress line and a summary.
 run: build

@@ -25,7 +25,7 @@ help(_Config) ->
     [begin
          {0, H, _} = rw_test_lib:run_escript([Cmd, "--help"]),
          ?assertMatch({match, _}, re:run(H, "^usage: rigidwarp " ++ Cmd))
-     end || Cmd <- ["run", "validate", "scenes", "view", "snapshot"]].
+     end || Cmd <- ["run", "validate", "scenes", "view", "snapshot", "bench"]].
 
 validate_every_scenario(_Config) ->
     Files = filelib:wildcard(filename:join([rw_test_lib:root(), "scenarios", "*.json"])),
@@ -92,7 +92,19 @@ bad_flags_exit_2(_Config) ->
              {["snapshot", "f.jsonl", "--scene", Scene, "--at", "5"], "snapshot needs --out"},
              {["snapshot", "f.jsonl", "--scene", Scene, "--at", "-5", "--out", "x.png"], "--at must be a non-negative"},
              {["snapshot", "f.jsonl", "--scene", Scene, "--at", "5", "--out", "x.jpg"], "--out must name a .png"},
-             {["snapshot", "missing.jsonl", "--scene", Scene, "--at", "5", "--out", "x.png"], "cannot read frames file"}],
+             {["snapshot", "missing.jsonl", "--scene", Scene, "--at", "5", "--out", "x.png"], "cannot read frames file"},
+             {["bench"], "bench needs a benchmark: accuracy"},
+             {["bench", "speed"], "unknown benchmark speed"},
+             {["bench", "accuracy", "--bogus"], "unknown flag --bogus"},
+             {["bench", "accuracy", "--substeps", "1,0"], "--substeps must be a positive integer"},
+             {["bench", "accuracy", "--substeps", "1,,2"], "--substeps takes a comma-separated list"},
+             {["bench", "accuracy", "--ccd", "maybe"], "--ccd takes off, on or off,on"},
+             {["bench", "accuracy", "--integrators", "rk4"], "--integrators: unknown integrator rk4"},
+             {["bench", "accuracy", "--out", "a.txt"], "--out must name a .csv file"},
+             {["bench", "accuracy", "--plot"], "--plot needs a value"},
+             {["bench", "accuracy", "--scenes", "projectile:soon"], "--scenes projectile: must be a positive integer"},
+             {["bench", "accuracy", "--scenes", "no_such_scene"], "scenarios/no_such_scene.json: $: cannot read file"},
+             {["bench", "accuracy", "--scenes", "cylinders_200"], "cylinders_200: the exact solver models spheres"}],
     [begin
          {Code, Out, Err} = rw_test_lib:run_escript(Args),
          ct:log("~p -> ~b~n~s", [Args, Code, Err]),
@@ -210,6 +222,8 @@ shell_api_rejects_bad_arguments(_Config) ->
     Cases = [{fun() -> rigidwarp:run(some_atom, #{}) end, "the scene file must be a string"},
              {fun() -> rigidwarp:run(Scene, #{untill => 5}) end, "unknown option untill"},
              {fun() -> rigidwarp:run(Scene, #{until => -5}) end, "bad value for option until"},
+             {fun() -> rigidwarp:run(Scene, #{integrator => rk4}) end, "bad value for option integrator: rk4"},
+             {fun() -> rigidwarp:run(Scene, #{ccd => yes}) end, "bad value for option ccd"},
              {fun() -> rigidwarp:run(Scene, not_a_map) end, "options must be a map"},
              {fun() -> rigidwarp:start(Scene, #{engine => reference}) end, "timewarp engine only"},
              {fun() -> rigidwarp:start("/nonexistent.json", #{}) end, "cannot read file"},

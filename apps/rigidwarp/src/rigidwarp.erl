@@ -13,6 +13,7 @@
                          watchdog_ms => pos_integer(),
                          until => pos_integer(), substep => pos_integer(),
                          stride => pos_integer(), frame_ms => pos_integer(),
+                         integrator => rw_integrate:integrator(), ccd => boolean(),
                          frames => file:filename(),
                          on_frame => fun((rw_reference:frame()) -> any()),
                          on_progress => fun((map()) -> any())}.
@@ -21,8 +22,8 @@
 -opaque sim() :: rw_timewarp:handle().
 -export_type([sim/0]).
 
--define(OPTION_KEYS, [engine, until, substep, stride, frame_ms, frames, on_frame, on_progress, buckets,
-                      schedulers, watchdog_ms]).
+-define(OPTION_KEYS, [engine, until, substep, stride, frame_ms, integrator, ccd, frames, on_frame, on_progress,
+                      buckets, schedulers, watchdog_ms]).
 
 -spec help() -> ok.
 help() ->
@@ -30,7 +31,8 @@ help() ->
       "rigidwarp shell API\n"
       "  rigidwarp:run(SceneFile, Opts)  run a scene to the end, return a summary map\n"
       "      Opts: engine => reference, until => Ms, substep => Ms, stride => Ms,\n"
-      "            frame_ms => Ms, frames => \"out.jsonl\", on_frame => fun(Frame) -> _ end\n"
+      "            frame_ms => Ms, integrator => verlet, ccd => true,\n"
+      "            frames => \"out.jsonl\", on_frame => fun(Frame) -> _ end\n"
       "  rigidwarp:load(SceneFile, Opts) validate a scene, return {ok, Scene} | {error, Message}\n"
       "  rigidwarp:start(SceneFile, Opts) start a Time Warp run in the background: {ok, Sim}\n"
       "  rigidwarp:frames(Sim)           the latest committed frame\n"
@@ -274,6 +276,13 @@ check_values([{K, V} | Rest]) when (K =:= buckets orelse K =:= schedulers orelse
                                    is_integer(V), V > 0, V =< 1 bsl 20 -> check_values(Rest);
 check_values([{K, V} | Rest]) when (K =:= until orelse K =:= substep orelse K =:= stride orelse
                                     K =:= frame_ms), is_integer(V), V > 0 -> check_values(Rest);
+check_values([{integrator, I} | Rest]) ->
+    case lists:member(I, rw_integrate:integrators()) of
+        true -> check_values(Rest);
+        false -> {error, lists:flatten(io_lib:format("bad value for option integrator: ~p (known: ~p)",
+                                                     [I, rw_integrate:integrators()]))}
+    end;
+check_values([{ccd, C} | Rest]) when is_boolean(C) -> check_values(Rest);
 check_values([{frames, F} | Rest]) when is_list(F); is_binary(F) -> check_values(Rest);
 check_values([{K, F} | Rest]) when (K =:= on_frame orelse K =:= on_progress), is_function(F, 1) ->
     check_values(Rest);
@@ -282,5 +291,6 @@ check_values([{K, V} | _]) ->
 
 overrides(Opts) ->
     maps:from_list([{Scene, V} || {Opt, Scene} <- [{until, duration_ms}, {substep, substep_ms},
-                                                   {stride, stride_ms}, {frame_ms, frame_ms}],
+                                                   {stride, stride_ms}, {frame_ms, frame_ms},
+                                                   {integrator, integrator}, {ccd, ccd}],
                                   {ok, V} <- [maps:find(Opt, Opts)]]).

@@ -12,7 +12,8 @@
 %% Values that replace the scene's own (from CLI flags or the shell).
 -type overrides() :: #{duration_ms => pos_integer(), substep_ms => pos_integer(),
                        stride_ms => pos_integer(), frame_ms => pos_integer(),
-                       buckets => pos_integer()}.
+                       buckets => pos_integer(), integrator => rw_integrate:integrator(),
+                       ccd => boolean()}.
 
 %% Coordinates, speeds and sizes beyond this are rejected: far enough for
 %% scenes around +-1e9 m, near enough that squared distances stay finite.
@@ -130,7 +131,7 @@ build(Map, Overrides, File) ->
     multiple_of(Duration, Substep, [<<"duration_ms">>]),
     multiple_of(Stride, Substep, [<<"stride_ms">>]),
     multiple_of(Frame, Substep, [<<"frame_ms">>]),
-    Model = model(maps:get(<<"model">>, Map, #{}), Substep / 1000.0),
+    Model = model_overrides(model(maps:get(<<"model">>, Map, #{}), Substep / 1000.0), Overrides),
     Bodies = list_field(Map, <<"bodies">>, []),
     Generated = generators(list_field(Map, <<"generators">>, [])),
     Parsed = [body(B, [<<"bodies">>, I]) || {I, B} <- enumerate(Bodies)] ++ Generated,
@@ -204,6 +205,11 @@ model(M, Dt) ->
            rest_speed = non_negative(M, <<"rest_speed">>, P, RestDefault),
            correction = fraction(M, <<"correction">>, P, 0.2),
            slop = non_negative(M, <<"slop">>, P, 0.0)}.
+
+%% The integrator and CCD can be chosen per run (rw_accuracy sweeps them).
+model_overrides(Model, Overrides) ->
+    Model#model{integrator = maps:get(integrator, Overrides, Model#model.integrator),
+                ccd = maps:get(ccd, Overrides, Model#model.ccd)}.
 
 -define(SPHERE_KEYS, [<<"id">>, <<"shape">>, <<"static">>, <<"radius">>, <<"mass">>,
                       <<"position">>, <<"velocity">>, <<"angular_velocity">>]).

@@ -79,6 +79,12 @@ overrides_apply_before_validation_test() ->
     {error, E} = rw_scene:from_map(base(), #{overrides => #{duration_ms => 51, substep_ms => 2}}),
     ?assertMatch({match, _}, re:run(rw_scene:format_error(E), "duration_ms: 51 ms")).
 
+model_overrides_test() ->
+    Map = (base())#{<<"model">> => #{<<"integrator">> => <<"explicit_euler">>, <<"ccd">> => true}},
+    {ok, #scene{model = #model{integrator = explicit_euler, ccd = true}}} = rw_scene:from_map(Map, #{}),
+    {ok, #scene{model = #model{integrator = verlet, ccd = false}}} =
+        rw_scene:from_map(Map, #{overrides => #{integrator => verlet, ccd => false}}).
+
 generators_are_deterministic_test() ->
     Map = (base())#{<<"generators">> =>
                         [#{<<"type">> => <<"random">>, <<"id_prefix">> => <<"r">>, <<"count">> => 20, <<"seed">> => 5,

@@ -33,11 +33,27 @@
                              a picture of the frame at MS (front view, x right, y up;
                              gnuplot), without a browser
 ").
+-define(BENCH_HELP,
+"  bench accuracy [options]   speed versus accuracy: sweeps substep, stride, integrator and CCD
+                             over analytic scenes, measured against their exact solution;
+                             a table on stdout, a CSV file and a Pareto plot (gnuplot)
+      --scenes A,B           scene names (scenarios/NAME.json) or files, each optionally
+                             NAME:MS to end at MS (default: projectile, ball_drop,
+                             head_on_elastic, newtons_cradle, fast_thin_wall, bouncing_50_250:1000)
+      --until MS             end time of the scenes without their own (default: duration_ms)
+      --substeps LIST        substeps in ms (default 1,2,4,8,16; 1 ms is the tick)
+      --strides LIST         strides in ms, rounded up to the substep (default 16,64,256)
+      --integrators LIST     from symplectic_euler,verlet,explicit_euler (default: all three)
+      --ccd LIST             off,on (default), off or on
+      --out FILE.csv         the CSV file (default doc/bench/accuracy.csv)
+      --plot FILE.png        the Pareto plot (default doc/bench/accuracy.png)
+      --quiet                no progress lines on stderr
+").
 -define(USAGE,
 "usage: rigidwarp <command> [options]
 
 commands:
-" ?RUN_HELP ?VALIDATE_HELP ?SCENES_HELP ?VIEW_HELP ?SNAPSHOT_HELP
+" ?RUN_HELP ?VALIDATE_HELP ?SCENES_HELP ?VIEW_HELP ?SNAPSHOT_HELP ?BENCH_HELP
 "  help                       this text; rigidwarp COMMAND --help for one command
 
 exit codes: 0 ok, 1 runtime failure, 2 bad input (the message names the field or flag)
@@ -83,6 +99,7 @@ command_help("validate") -> ?VALIDATE_HELP;
 command_help("scenes") -> ?SCENES_HELP;
 command_help("view") -> ?VIEW_HELP;
 command_help("snapshot") -> ?SNAPSHOT_HELP;
+command_help("bench") -> ?BENCH_HELP;
 command_help(Cmd) -> throw({usage, "unknown command " ++ Cmd}).
 
 command("run", Args) -> run(parse(Args));
@@ -97,6 +114,7 @@ command("scenes", [Dir]) -> scenes(Dir);
 command("scenes", _) -> throw({usage, "scenes takes at most one directory"});
 command("view", Args) -> rw_cli_view:view(Args);
 command("snapshot", Args) -> rw_cli_view:snapshot(Args);
+command("bench", Args) -> rw_cli_bench:bench(Args);
 command(Cmd, _) -> throw({usage, "unknown command " ++ Cmd}).
 
 scenes(Dir) ->
