@@ -7,11 +7,11 @@
 -module(rw_bench_SUITE).
 -include_lib("common_test/include/ct.hrl").
 -export([all/0, suite/0, init_per_suite/1, end_per_suite/1]).
--export([fig7_speedup/1, fig8_breakdown/1, fig9_density/1, fig10_stride/1]).
+-export([fig7_speedup/1, fig8_breakdown/1, fig9_density/1, fig10_stride/1, features/1, contact_vs_isolated/1]).
 
 suite() -> [{timetrap, {hours, 3}}].
 
-all() -> [fig7_speedup, fig8_breakdown, fig9_density, fig10_stride].
+all() -> [fig7_speedup, fig8_breakdown, fig9_density, fig10_stride, features, contact_vs_isolated].
 
 init_per_suite(Config) ->
     {ok, _} = application:ensure_all_started(rigidwarp),
@@ -99,7 +99,77 @@ fig10_stride(Config) ->
               || Name <- ["parallel_200", "cylinders_200", "bouncing_200_250"]]),
     write_csv("fig10_stride.csv", ["scene", "stride_ms", "timewarp_ms", "timewarp_min", "timewarp_max"], Rows).
 
+%%% A scene pays only for the physics it declares: the same scene with
+%%% rotation, friction or gravity switched on, against the scene as
+%%% written (which declares none of them). Work is counted in reductions of
+%%% the whole run (steady where wall time is noisy) and timed on all cores;
+%%% both are reported relative to the scene as written.
+features(Config) ->
+    Cores = erlang:system_info(schedulers),
+    Variants = [{"as_written", #{}},
+                {"rotation", #{<<"rotation">> => true}},
+                {"friction", #{<<"friction">> => 0.3}},
+                {"gravity", #{<<"gravity">> => [0, -9.81, 0]}},
+                {"all_three", #{<<"rotation">> => true, <<"friction">> => 0.3, <<"gravity">> => [0, -9.81, 0]}}],
+    Rows = lists:append(
+             [begin
+                  Measured = [begin
+                                  Scene = load_with_model(Name, Model, Config),
+                                  Runs = [work(Scene, Cores) || _ <- lists:seq(1, ?config(repeats, Config))],
+                                  {Variant, median([R || {R, _} <- Runs]), [W || {_, W} <- Runs]}
+                              end || {Variant, Model} <- Variants],
+                  {_, BaseReds, BaseWalls} = hd(Measured),
+                  [[Name, Variant, Reds, Reds / BaseReds | stats(Walls) ++ [median(Walls) / median(BaseWalls)]]
+                   || {Variant, Reds, Walls} <- Measured]
+              end || Name <- ["parallel_500", "bouncing_200_250"]]),
+    write_csv("features.csv", ["scene", "variant", "reductions", "reductions_vs_as_written", "wall_ms", "wall_min",
+                               "wall_max", "wall_vs_as_written"], Rows).
+
+%%% Isolated bodies take long steps and do little work per substep; bodies
+%%% in frequent contact take short steps and exchange events. Parallel
+%%% (never touching) against Bouncing in its densest box, at a short and a
+%%% long stride: per committed body-substep, the reductions, the TVHT
+%%% writes (steps) and the events.
+contact_vs_isolated(Config) ->
+    Cores = erlang:system_info(schedulers),
+    Rows = [begin
+                Scene = load(Name, Config, #{stride => Stride}),
+                {R0, _} = erlang:statistics(exact_reductions),
+                T0 = erlang:monotonic_time(microsecond),
+                {ok, Stats} = with_schedulers(Cores, fun() -> rw_timewarp:run(Scene, #{}) end),
+                Wall = (erlang:monotonic_time(microsecond) - T0) / 1000,
+                {R1, _} = erlang:statistics(exact_reductions),
+                #{committed_substeps := Committed, computed_substeps := Computed, steps := Steps,
+                  events := Events, efficiency := Eff} = Stats,
+                [Name, Stride, Committed, (R1 - R0) / Committed, Steps / Committed, Computed / Steps,
+                 Events / Committed, Eff, Wall]
+            end || Name <- ["parallel_200", "bouncing_200_100"], Stride <- [16, 64, 512]],
+    write_csv("contact.csv", ["scene", "stride_ms", "committed_substeps", "reductions_per_substep",
+                              "writes_per_substep", "substeps_per_write", "events_per_substep", "efficiency",
+                              "wall_ms"], Rows).
+
 %%% Helpers
+
+%% The scene file with its "model" object extended by Model.
+load_with_model(Name, Model, Config) ->
+    File = filename:join([root(), "scenarios", Name ++ ".json"]),
+    {ok, Bin} = file:read_file(File),
+    Map = jiffy:decode(Bin, [return_maps]),
+    Map1 = Map#{<<"model">> => maps:merge(maps:get(<<"model">>, Map, #{}), Model)},
+    {ok, Scene} = rw_scene:from_map(Map1, #{file => File, overrides => #{duration_ms => ?config(ms, Config)}}),
+    Scene.
+
+%% Reductions of the whole VM and wall time (ms) of one Time Warp run on S
+%% schedulers.
+work(Scene, S) ->
+    with_schedulers(S, fun() ->
+                               {R0, _} = erlang:statistics(exact_reductions),
+                               T0 = erlang:monotonic_time(microsecond),
+                               {ok, _} = rw_timewarp:run(Scene, #{}),
+                               Wall = (erlang:monotonic_time(microsecond) - T0) / 1000,
+                               {R1, _} = erlang:statistics(exact_reductions),
+                               {R1 - R0, Wall}
+                       end).
 
 load(Name, Config) -> load(Name, Config, #{}).
 load(Name, Config, Extra) ->

@@ -8,8 +8,10 @@
 %%   rollback wait until the antievents of a rollback are acknowledged
 %%            (Alg. 4, 7).
 %%
-%% Timeline: hist holds the pre-response state written to the TVHT at every
-%% substep from GVT to LVT; contacts holds, per substep, the contacts with
+%% Timeline: written holds every write to the TVHT from GVT to LVT with
+%% its states packed in one off-heap binary (rw_states), so the history of
+%% pre-response states costs the body's garbage collector nothing; the
+%% writes cover every substep up to LVT without gaps. contacts holds, per substep, the contacts with
 %% other bodies known at that substep (own detections and received events),
 %% each as this body's half of the pair's effect. The post-response velocity
 %% at a substep is always recomputed from the pre-response state and the
@@ -41,7 +43,7 @@
     stride :: pos_integer(),
     lvt = 0 :: non_neg_integer(),
     gvt = -1 :: integer(),                      % -1 until the first frame
-    hist = #{} :: #{non_neg_integer() => #st{}},
+    start :: #st{},                             % the state at LVT 0, until written
     contacts = #{} :: #{non_neg_integer() => #{cid() => {non_neg_integer(), rw_response:effect()}}},
     pend_ev = #{} :: #{cid() => true},
     pend_anti = #{} :: #{cid() => true},
@@ -52,8 +54,10 @@
     %% persistent contact do not compute far ahead only to throw it away
     window = 1 :: pos_integer(),
     gc_at = 0 :: non_neg_integer(),            % next GVT at which to prune history
-    %% where each write went: {T0, UpTo, [{BucketIndex, Pid, Cells}]}, newest first
-    written = [] :: [{non_neg_integer(), non_neg_integer(), [{non_neg_integer(), pid(), [rw_hash:cell()]}]}],
+    %% each write: its substeps T0..UpTo, where it went, and its states
+    %% (from T0 on, one per substep), newest first
+    written = [] :: [{non_neg_integer(), non_neg_integer(), [{non_neg_integer(), pid(), [rw_hash:cell()]}],
+                      rw_states:packed()}],
     %% bodies touched recently, for the neighbour rule (see step/3)
     partners = #{} :: #{non_neg_integer() => pid()},
     %% the latest substep at which this body touched each partner
@@ -77,6 +81,7 @@
 -define(ST_RED_ROLLBACK, 9).
 -define(ST_RED_GVT, 10).
 -define(ST_RED_ROLLBACK_CALLS, 11).      % bucket calls inside rollbacks, subtracted
+-define(ST_STEPS, 12).                   % writes to the TVHT (one per step, any length)
 
 %% Time Expr into counter Stage when profiling; costs one test otherwise.
 -define(TIMED(D, Stage, Expr),
@@ -107,16 +112,15 @@ callback_mode() -> state_functions.
 -spec init({#sim{}, #sphere{}, #st{}}) -> gen_statem:init_result(ready).
 init({#sim{scene = #scene{model = M, substep_ms = Dt, frame_ms = F, stride_ms = Stride}, end_ms = End} = Sim,
       #sphere{idx = Idx} = Sphere, St0}) ->
-    D = #d{sim = Sim, sphere = Sphere, idx = Idx, model = M, dt = Dt, frame_ms = F,
-           end_ms = End, stride = Stride},
-    {ok, ready, D#d{hist = #{0 => St0}}}.
+    {ok, ready, #d{sim = Sim, sphere = Sphere, idx = Idx, model = M, dt = Dt, frame_ms = F,
+                   end_ms = End, stride = Stride, start = St0}}.
 
 %%% Phases
 
 -spec step(gen_statem:event_type(), term(), #d{}) -> gen_statem:event_handler_result(atom()).
 %% Before the simulation starts: every body exists, none has written yet.
 -spec ready(gen_statem:event_type(), term(), #d{}) -> gen_statem:event_handler_result(atom()).
-ready(info, go, #d{hist = #{0 := St0}} = D) ->
+ready(info, go, #d{start = St0} = D) ->
     %% the initial state is written like any other, at LVT 0
     settle(write_states([{0, St0}], 0, D#d{lvt = 0}));
 ready(info, {delay, Seed, MaxMs}, D) ->
@@ -255,9 +259,10 @@ publish_lvt(#d{sim = #sim{lvts = Lvts}, idx = Idx, lvt = Lvt, watchers = W} = D)
 
 %%% Step: integrate from LVT to Last assuming no new contacts, write
 
-advance(Lvt, Last, #d{hist = Hist} = D) ->
-    {Passed, States} = ?TIMED(D, ?ST_RED_INTEGRATE, chain(Lvt, maps:get(Lvt, Hist), Last, D, [], [])),
+advance(Lvt, Last, D) ->
+    {Passed, States} = ?TIMED(D, ?ST_RED_INTEGRATE, chain(Lvt, state_at(Lvt, D), Last, D, [], [])),
     counters:add(D#d.sim#sim.stats, ?ST_COMPUTED, length(States)),
+    counters:add(D#d.sim#sim.stats, ?ST_STEPS, 1),
     D1 = write_states(States, Last, D),
     %% commit every frame time this step moved past
     #d{lvt = NewLvt} = D1,
@@ -308,7 +313,7 @@ fixture_contacts(#st{p = P} = St, Shape, #d{model = #model{ccd = true} = M, sphe
 %% stop at the first substep with contacts and send the events for them.
 %% LVT becomes that substep, or Last.
 write_states([{T0, _} | _] = States, Last,
-             #d{idx = Idx, sphere = S, model = M, sim = Sim, hist = Hist, written = Written} = D) ->
+             #d{idx = Idx, sphere = S, model = M, sim = Sim, written = Written} = D) ->
     StList = [St || {_, St} <- States],
     DispList = case M#model.ccd of
                    true -> [rw_integrate:free_displacement(M, St) || St <- StList];
@@ -316,8 +321,8 @@ write_states([{T0, _} | _] = States, Last,
                end,
     Sts = list_to_tuple(StList),
     Disps = case DispList of undefined -> undefined; _ -> list_to_tuple(DispList) end,
-    Payload = {Idx, self(), S, T0, rw_states:pack(StList, DispList, M#model.rotation, M#model.ccd),
-               bounds(Sts, Disps, S#sphere.radius)},
+    Packed = rw_states:pack(StList, DispList, M#model.rotation, M#model.ccd),
+    Payload = {Idx, self(), S, T0, Packed, bounds(Sts, Disps, S#sphere.radius)},
     %% hashing the states to cells and buckets is collision-checking work
     Plan = ?TIMED(D, ?ST_RED_TVHT, plan(cell_spans(States, Disps, D), Sim)),
     maybe_delay(D),
@@ -331,18 +336,21 @@ write_states([{T0, _} | _] = States, Last,
                    end,
     Ids = maps:from_list([{OIdx, {UpTo, min(Idx, OIdx), max(Idx, OIdx), make_ref()}} || {OIdx, _} <- Hits]),
     [rw_bucket:commit_unlock(Pid, self(), UpTo, Ids) || {_, Pid, _, _} <- Plan],
-    Hist1 = case Hits of
-                [] -> maps:merge(Hist, maps:from_list(States));
-                _ -> maps:merge(Hist, maps:from_list([TS || {T, _} = TS <- States, T =< UpTo]))
-            end,
     Where = [{B, Pid, Cells} || {B, Pid, Cells, _} <- Plan],
     MaxWindow = max(1, D#d.stride div D#d.dt),
     Window = case Hits of
                  [] -> min(MaxWindow, 2 * D#d.window);
                  _ -> min(MaxWindow, max(1, 2 * ((UpTo - T0) div D#d.dt + 1)))
              end,
-    D1 = D#d{hist = Hist1, lvt = UpTo, written = [{T0, UpTo, Where} | Written], window = Window},
+    D1 = D#d{lvt = UpTo, written = [{T0, UpTo, Where, Packed} | Written], window = Window},
     publish_lvt(send_events(UpTo, Hits, Ids, D1)).
+
+%% The pre-response state at substep T (GVT =< T =< LVT): in the newest
+%% write that starts at or before T.
+state_at(T, #d{written = Written, dt = Dt}) -> state_in(T, Written, Dt).
+
+state_in(T, [{T0, _, _, Packed} | _], Dt) when T0 =< T -> rw_states:state(Packed, (T - T0) div Dt + 1);
+state_in(T, [_ | Older], Dt) -> state_in(T, Older, Dt).
 
 %% A box that holds the sphere at every state of a step (swept over each
 %% substep with CCD), padded against rounding: the buckets skip the
@@ -410,8 +418,8 @@ plan(Spans, #sim{buckets = Buckets}) ->
      || {B, Ss} <- lists:sort(maps:to_list(ByBucket))].
 
 send_events(_T, [], _Ids, D) -> D;
-send_events(T, Hits, Ids, #d{idx = Idx, sphere = S, model = M, hist = Hist, contacts = Contacts} = D) ->
-    St = maps:get(T, Hist),
+send_events(T, Hits, Ids, #d{idx = Idx, sphere = S, model = M, contacts = Contacts} = D) ->
+    St = state_at(T, D),
     {Mine, Pend} = lists:foldl(
                      fun({OIdx, {{_, OPid, OS, OSt, _}, Contact}}, {Acc, P}) ->
                              {Own, Theirs} = case Idx < OIdx of
@@ -482,20 +490,20 @@ on_antievent(Cid, T, From, #d{contacts = Contacts, lvt = Lvt} = D) ->
 roll_back(R, #d{lvt = Lvt} = D) when R >= Lvt -> withdraw(R, D);
 roll_back(R, D) -> ?TIMED(D, ?ST_RED_ROLLBACK, undo(R, D)).
 
-undo(R, #d{idx = Idx, hist = Hist, contacts = Contacts, sim = Sim, written = Written} = D) ->
-    Gone = [T || T <- maps:keys(Hist), T > R],
+undo(R, #d{idx = Idx, lvt = Lvt, dt = Dt, contacts = Contacts, sim = Sim, written = Written} = D) ->
     %% every bucket holding a state after R, with the cells it holds them in
     Where = lists:foldl(fun({B, Pid, Cells}, Acc) ->
                                 maps:update_with({B, Pid}, fun(Cs) -> Cells ++ Cs end, Cells, Acc)
-                        end, #{}, [X || {_, UpTo, Ws} <- Written, UpTo > R, X <- Ws]),
+                        end, #{}, [X || {_, UpTo, Ws, _} <- Written, UpTo > R, X <- Ws]),
     maybe_delay(D),
     Plan = lists:sort(maps:to_list(Where)),
     %% (the buckets count their own work as TVHT; waiting is not work)
     Lost = ?TIMED(D, ?ST_RED_ROLLBACK_CALLS, lists:append([rw_bucket:lock_delete(Pid, self(), lists:usort(Cells), Idx, R)
                                                           || {{_, Pid}, Cells} <- Plan])),
     [rw_bucket:unlock(Pid, self()) || {{_, Pid}, _} <- Plan],
-    Written1 = [{T0, min(UpTo, R), Ws} || {T0, UpTo, Ws} <- Written, T0 =< R],
-    counters:add(Sim#sim.stats, ?ST_ROLLED_BACK, length(Gone)),
+    Written1 = [{T0, min(UpTo, R), Ws, P} || {T0, UpTo, Ws, P} <- Written, T0 =< R],
+    %% the writes hold a state at every substep up to LVT
+    counters:add(Sim#sim.stats, ?ST_ROLLED_BACK, (Lvt - R) div Dt),
     Me = self(),
     {PendAnti, Ghosts} =
         lists:foldl(
@@ -515,7 +523,7 @@ undo(R, #d{idx = Idx, hist = Hist, contacts = Contacts, sim = Sim, written = Wri
           end, {D#d.pend_anti, D#d.ghosts}, Lost),
     counters:add(Sim#sim.stats, ?ST_ANTIEVENTS, map_size(PendAnti) - map_size(D#d.pend_anti)),
     Keep = fun(T, _) -> T =< R end,
-    withdraw(R, publish_lvt(D#d{lvt = R, hist = maps:filter(Keep, Hist), contacts = maps:filter(Keep, Contacts),
+    withdraw(R, publish_lvt(D#d{lvt = R, contacts = maps:filter(Keep, Contacts),
                     pend_ev = #{}, pend_anti = PendAnti, ghosts = Ghosts, written = Written1,
                     window = max(1, D#d.window div 2)})).
 
@@ -544,8 +552,8 @@ commit(T, #st{p = P, q = Q}, {V, W, _U}, #d{sim = Sim, idx = Idx, sphere = #sphe
 
 %% A body waiting at LVT_ub (or at the end time) commits its LVT once
 %% nothing is awaited there; a later event at LVT withdraws it again.
-commit_lvt(#d{lvt = Lvt, hist = Hist} = D) ->
-    St = maps:get(Lvt, Hist),
+commit_lvt(#d{lvt = Lvt} = D) ->
+    St = state_at(Lvt, D),
     commit(Lvt, St, rw_dynamics:respond(St, effects(Lvt, St, D)), D).
 
 %% Take back every commit at or after T.
@@ -560,10 +568,10 @@ withdraw(T, #d{committed = Committed, sim = Sim, idx = Idx} = D) ->
 %% History before GVT can never be needed again; pruning it costs a pass,
 %% so it is done once per stride.
 on_gvt(G, #d{gc_at = At} = D) when G < At -> D#d{gvt = G};
-on_gvt(G, #d{hist = Hist, contacts = Contacts, committed = Committed, written = Written, stride = Stride} = D) ->
+on_gvt(G, #d{contacts = Contacts, committed = Committed, written = Written, stride = Stride} = D) ->
     Keep = fun(T, _) -> T >= G end,
-    (forget_touches(G - ?RECENT_SUBSTEPS * D#d.dt, D))#d{gvt = G, hist = maps:filter(Keep, Hist), contacts = maps:filter(Keep, Contacts),
-        committed = [T || T <- Committed, T > G], written = [W || {_, UpTo, _} = W <- Written, UpTo >= G],
+    (forget_touches(G - ?RECENT_SUBSTEPS * D#d.dt, D))#d{gvt = G, contacts = maps:filter(Keep, Contacts),
+        committed = [T || T <- Committed, T > G], written = [W || {_, UpTo, _, _} = W <- Written, UpTo >= G],
         gc_at = G + Stride}.
 
 %% Every message to another body goes through here, so that the test hook

@@ -14,7 +14,8 @@
 
 -define(STAT_NAMES, [events, antievents, primary_rollbacks, secondary_rollbacks,
                      rolled_back_substeps, computed_substeps,
-                     tvht_reductions, integrate_reductions, rollback_reductions, gvt_reductions, rollback_calls_reductions]).
+                     tvht_reductions, integrate_reductions, rollback_reductions, gvt_reductions, rollback_calls_reductions,
+                     steps]).
 -define(PROFILE_NAMES, [tvht_reductions, integrate_reductions, rollback_reductions, gvt_reductions, rollback_calls_reductions]).
 
 -spec default_buckets() -> pos_integer().
