@@ -5,12 +5,12 @@
 -include_lib("stdlib/include/assert.hrl").
 -export([all/0, suite/0]).
 -export([help/1, validate_every_scenario/1, summary_is_last_line/1, frames_file/1,
-         bad_flags_exit_2/1, bad_scene_exit_2/1, scenes_lists_bundled/1, bad_input_corpus/1,
+         bad_flags_exit_2/1, integrator_and_ccd_flags/1, bad_scene_exit_2/1, scenes_lists_bundled/1, bad_input_corpus/1,
          generated_bad_inputs/1, progress_line/1, snapshot_png/1, shell_api_rejects_bad_arguments/1]).
 
 suite() -> [{timetrap, {minutes, 5}}].
 
-all() -> [help, validate_every_scenario, summary_is_last_line, frames_file, bad_flags_exit_2,
+all() -> [help, validate_every_scenario, summary_is_last_line, frames_file, integrator_and_ccd_flags, bad_flags_exit_2,
           bad_scene_exit_2, scenes_lists_bundled, bad_input_corpus, generated_bad_inputs, progress_line,
           snapshot_png, shell_api_rejects_bad_arguments].
 
@@ -66,12 +66,31 @@ frames_file(Config) ->
                        #{<<"id">> := <<"b">>}]} = jiffy:decode(hd(Lines), [return_maps]),
     ?assertNot(filelib:is_file(Out ++ ".part")).
 
+%% --integrator and --ccd reach the physics: Verlet follows the projectile's
+%% parabola exactly where symplectic Euler does not, and both engines agree.
+integrator_and_ccd_flags(Config) ->
+    Scene = rw_test_lib:scenario("projectile.json"),
+    Frames = fun(Name, Flags) ->
+                     Out = filename:join(?config(priv_dir, Config), Name),
+                     {0, _, _} = rw_test_lib:run_escript(["run", Scene, "--until", "200", "--quiet", "--frames", Out
+                                                         | Flags]),
+                     {ok, Bin} = file:read_file(Out),
+                     Bin
+             end,
+    Default = Frames("default.jsonl", []),
+    Verlet = Frames("verlet.jsonl", ["--integrator", "verlet", "--ccd", "on"]),
+    ?assertEqual(Verlet, Frames("verlet-ref.jsonl", ["--integrator", "verlet", "--ccd", "on", "--engine", "reference"])),
+    ?assertNotEqual(Default, Verlet).
+
 bad_flags_exit_2(_Config) ->
     Scene = rw_test_lib:scenario("head_on_elastic.json"),
     Cases = [{["run", Scene, "--bogus"], "unknown flag --bogus"},
              {["run", Scene, "--until", "abc"], "--until must be a positive integer"},
              {["run", Scene, "--stride", "-5"], "--stride must be a positive integer"},
              {["run", Scene, "--engine", "warp"], "--engine must be timewarp or reference"},
+             {["run", Scene, "--integrator", "rk4"], "--integrator must be one of symplectic_euler, verlet, explicit_euler"},
+             {["run", Scene, "--ccd", "yes"], "--ccd must be on or off, got yes"},
+             {["run", Scene, "--ccd"], "--ccd needs a value"},
              {["run", Scene, "--schedulers", "999"], "--schedulers must be at most"},
              {["run", Scene, "--until"], "--until needs a value"},
              {["run"], "run needs a scene file"},

@@ -13,6 +13,8 @@
       --substep MS           substep in ms (default: the scene's substep_ms)
       --stride MS            LVT_ub - GVT in ms (default: the scene's stride_ms)
       --frame-ms MS          frame interval in ms (default: the scene's frame_ms)
+      --integrator NAME      symplectic_euler, verlet or explicit_euler (default: the scene's)
+      --ccd on|off           swept (continuous) collision tests (default: the scene's)
       --quiet                no progress line on stderr
 ").
 -define(VALIDATE_HELP,
@@ -60,7 +62,7 @@ exit codes: 0 ok, 1 runtime failure, 2 bad input (the message names the field or
 ").
 
 -define(VALUE_FLAGS, ["--engine", "--schedulers", "--buckets", "--frames", "--until", "--substep",
-                      "--stride", "--frame-ms"]).
+                      "--stride", "--frame-ms", "--integrator", "--ccd"]).
 
 -spec main([string()]) -> no_return().
 main(Args) ->
@@ -162,6 +164,14 @@ parse(["--until", V | Rest], F, O, Q) -> parse(Rest, F, O#{until => pos_int("--u
 parse(["--substep", V | Rest], F, O, Q) -> parse(Rest, F, O#{substep => pos_int("--substep", V)}, Q);
 parse(["--stride", V | Rest], F, O, Q) -> parse(Rest, F, O#{stride => pos_int("--stride", V)}, Q);
 parse(["--frame-ms", V | Rest], F, O, Q) -> parse(Rest, F, O#{frame_ms => pos_int("--frame-ms", V)}, Q);
+parse(["--integrator", V | Rest], F, O, Q) ->
+    Known = [atom_to_list(I) || I <- rw_integrate:integrators()],
+    lists:member(V, Known) orelse
+        throw({usage, lists:flatten(["--integrator must be one of ", lists:join(", ", Known), ", got ", V])}),
+    parse(Rest, F, O#{integrator => list_to_existing_atom(V)}, Q);
+parse(["--ccd", "on" | Rest], F, O, Q) -> parse(Rest, F, O#{ccd => true}, Q);
+parse(["--ccd", "off" | Rest], F, O, Q) -> parse(Rest, F, O#{ccd => false}, Q);
+parse(["--ccd", V | _], _, _, _) -> throw({usage, "--ccd must be on or off, got " ++ V});
 parse([[$- | _] = Flag | _], _, _, _) ->
     case lists:member(Flag, ?VALUE_FLAGS) of
         true -> throw({usage, Flag ++ " needs a value"});
