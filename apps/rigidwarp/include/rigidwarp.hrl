@@ -30,5 +30,6 @@
     ring :: ets:tid(),                        % committed frames (see rw_gvt)
     stats :: counters:counters_ref(),         % see rw_timewarp:stat_index/1
     profile = false :: boolean(),             % time the engine's stages (rw_timewarp:stats/1)
-    lvts :: atomics:atomics_ref()             % every body's LVT, at rw_timewarp:lvt_slot(Idx)
+    lvts :: atomics:atomics_ref(),            % every body's LVT, at rw_timewarp:lvt_slot(Idx)
+    gvt_now :: atomics:atomics_ref()          % GVT (slot 1), which bodies read when they step
 }).

@@ -54,6 +54,7 @@
     %% persistent contact do not compute far ahead only to throw it away
     window = 1 :: pos_integer(),
     gc_at = 0 :: non_neg_integer(),            % next GVT at which to prune history
+    wake_at = none :: none | integer(),        % the GVT rw_gvt will wake this body at
     %% each write: its substeps T0..UpTo, where it went, and its states
     %% (from T0 on, one per substep), newest first
     written = [] :: [{non_neg_integer(), non_neg_integer(), [{non_neg_integer(), pid(), [rw_hash:cell()]}],
@@ -129,7 +130,8 @@ ready(info, {delay, Seed, MaxMs}, D) ->
 ready(_Type, _Msg, _D) ->
     {keep_state_and_data, [postpone]}.
 
-step(timeout, step, #d{lvt = Lvt, gvt = Gvt, stride = Stride, end_ms = End, dt = Dt} = D) ->
+step(timeout, step, D0) ->
+    #d{lvt = Lvt, gvt = Gvt, stride = Stride, end_ms = End, dt = Dt} = D = read_gvt(D0),
     Last = min(max(Gvt, 0) + Stride, End),
     %% A body that has passed the next sync point is not holding GVT back:
     %% it waits until it can take at least half a stride, since one long
@@ -158,7 +160,7 @@ step(timeout, step, #d{lvt = Lvt, gvt = Gvt, stride = Stride, end_ms = End, dt =
                             settle(advance(Lvt, min(To, Lvt + D#d.window * Dt), D#d{watching = none}))
                     end
             end;
-        false -> {keep_state, commit_lvt(D)}
+        false -> {keep_state, wake_me(commit_lvt(D))}
     end;
 step(Type, Msg, D) ->
     common(Type, Msg, D).
@@ -187,7 +189,7 @@ on_message({event, Cid, T, FromIdx, From, Effect}, D) -> on_event(Cid, T, FromId
 on_message({antievent, Cid, T, From}, D) -> on_antievent(Cid, T, From, D);
 on_message({ack, event, Cid}, #d{pend_ev = P} = D) -> D#d{pend_ev = maps:remove(Cid, P)};
 on_message({ack, anti, Cid}, #d{pend_anti = P} = D) -> D#d{pend_anti = maps:remove(Cid, P)};
-on_message({gvt, G}, D) -> on_gvt(G, D);
+on_message({gvt, G}, D) -> on_gvt(G, D#d{wake_at = none});
 on_message({watch, Pid, T}, D) -> on_watch(Pid, T, D);
 on_message({reached, _Idx, _T}, D) -> D#d{watching = none}.
 
@@ -529,6 +531,23 @@ undo(R, #d{idx = Idx, lvt = Lvt, dt = Dt, contacts = Contacts, sim = Sim, writte
 
 %%% Commits (the GVT counter)
 
+%% GVT as rw_gvt last published it.
+read_gvt(#d{sim = #sim{gvt_now = Ref}} = D) -> on_gvt(atomics:get(Ref, 1), D).
+
+%% A body that cannot step until GVT advances asks rw_gvt to wake it at
+%% the earliest GVT at which it might (step/3): when LVT_ub is half a stride
+%% past its LVT, reaches the end, or when no sync point lies between GVT and
+%% its LVT any more. Early is harmless (it asks again), late would stall.
+wake_me(#d{lvt = Lvt, end_ms = End} = D) when Lvt >= End -> D;
+wake_me(#d{lvt = Lvt, gvt = G, dt = Dt, stride = S, frame_ms = F, end_ms = End, wake_at = Asked} = D) ->
+    MinStep = max(Dt, (S div 2) div Dt * Dt),
+    At = max(G + 1, lists:min([Lvt + MinStep - S, End - S, max(Lvt div F * F, Lvt div S * S)])),
+    case Asked of
+        none -> ok = rw_gvt:wake_at(D#d.sim#sim.gvt, self(), At), D#d{wake_at = At};
+        _ when Asked =< At -> D;
+        _ -> ok = rw_gvt:wake_at(D#d.sim#sim.gvt, self(), At), D#d{wake_at = At}
+    end.
+
 %% The first sync point after GVT: GVT cannot advance before every body
 %% has reached it.
 next_sync(#d{gvt = G, frame_ms = F, stride = S, end_ms = End}) -> rw_gvt:sync_after(G, F, S, End).
@@ -567,6 +586,8 @@ withdraw(T, #d{committed = Committed, sim = Sim, idx = Idx} = D) ->
 
 %% History before GVT can never be needed again; pruning it costs a pass,
 %% so it is done once per stride.
+%% (a wake-up may come after the body has read a later GVT itself)
+on_gvt(G, #d{gvt = Known} = D) when G =< Known -> D;
 on_gvt(G, #d{gc_at = At} = D) when G < At -> D#d{gvt = G};
 on_gvt(G, #d{contacts = Contacts, committed = Committed, written = Written, stride = Stride} = D) ->
     Keep = fun(T, _) -> T >= G end,

@@ -4,13 +4,17 @@
 %% frame time tells this process. Frames complete in time order: each is
 %% written to the ETS ring, GVT advances to it, and bodies and buckets drop
 %% their history before it (which raises every LVT_ub to GVT + stride).
+%% GVT is published in an atomic that bodies read when they step; only a
+%% body that cannot step until GVT reaches some time asks to be woken then
+%% (wake_at/3), so an advance costs a message per waiting body, not one
+%% per body.
 %%
 %% A watchdog stops the run with a diagnostic naming every body's phase,
 %% LVT and awaited acknowledgements if GVT does not advance for a while.
 -module(rw_gvt).
 -behaviour(gen_server).
 -include("rigidwarp.hrl").
--export([start_link/0, go/4, subscribe/2, latest/1, frame_at/2, frames_after/3, gvt/1, sync_after/4]).
+-export([start_link/0, go/4, subscribe/2, latest/1, frame_at/2, frames_after/3, gvt/1, sync_after/4, wake_at/3]).
 -export([init/1, handle_call/3, handle_cast/2, handle_info/2]).
 
 -record(s, {
@@ -20,6 +24,7 @@
     subscribers = [] :: [pid()],
     gvt = -1 :: integer(),                   % last frame time written
     complete = #{} :: #{non_neg_integer() => true},
+    waiting = gb_sets:empty() :: gb_sets:set({integer(), pid()}),   % {GVT to wake at, body}
     last_advance :: integer() | undefined,
     watchdog_ms = 10000 :: pos_integer(),
     ring_size = 1024 :: pos_integer(),
@@ -36,6 +41,12 @@ go(Gvt, Sim, Bodies, Opts) -> gen_server:call(Gvt, {go, Sim, Bodies, Opts}).
 %% Send {rw_frame, Gvt, Frame} to Pid for every frame from now on.
 -spec subscribe(pid(), pid()) -> ok.
 subscribe(Gvt, Pid) -> gen_server:call(Gvt, {subscribe, Pid}).
+
+%% Send {gvt, G} to Pid once GVT G >= At (at once if it is already).
+-spec wake_at(pid(), pid(), integer()) -> ok.
+wake_at(Gvt, Pid, At) ->
+    Gvt ! {wake_at, Pid, At},
+    ok.
 
 -spec gvt(pid()) -> integer().
 gvt(Gvt) -> gen_server:call(Gvt, gvt).
@@ -88,6 +99,11 @@ handle_info({complete, T}, #s{complete = C, sim = #sim{stats = Stats}} = S) ->
     %% counter 10 is gvt_reductions (rw_timewarp's stat names)
     counters:add(Stats, 10, reductions() - T0),
     {noreply, S1};
+handle_info({wake_at, Pid, At}, #s{gvt = G} = S) when At =< G ->
+    Pid ! {gvt, G},
+    {noreply, S};
+handle_info({wake_at, Pid, At}, #s{waiting = W} = S) ->
+    {noreply, S#s{waiting = gb_sets:add({At, Pid}, W)}};
 handle_info(watchdog, #s{gvt = End, sim = #sim{end_ms = End}} = S) ->
     {noreply, S};
 handle_info(watchdog, #s{last_advance = Last, watchdog_ms = W} = S) ->
@@ -133,15 +149,26 @@ advance(#s{complete = C, sim = #sim{end_ms = End} = Sim} = S) ->
                  end,
             ets:select_delete(Sim#sim.records, [{{{Next, '_'}, '_'}, [], [true]}]),
             ets:delete(Sim#sim.counts, Next),
-            _ = [B ! {gvt, Next} || B <- S#s.bodies],
+            ok = atomics:put(Sim#sim.gvt_now, 1, Next),
+            Waiting = wake(Next, S#s.waiting),
             [rw_bucket:gvt(B, Next) || B <- tuple_to_list(Sim#sim.buckets)],
-            S1 = S0#s{gvt = Next, complete = C1, last_advance = now_ms()},
+            S1 = S0#s{gvt = Next, complete = C1, last_advance = now_ms(), waiting = Waiting},
             case Next of
                 End -> ok = notify(S#s.owner, {rw_done, self(), End}), S1;
                 _ -> advance(S1)
             end;
         error ->
             S
+    end.
+
+wake(G, Waiting) ->
+    case gb_sets:is_empty(Waiting) of
+        true -> Waiting;
+        false ->
+            case gb_sets:take_smallest(Waiting) of
+                {{At, Pid}, Rest} when At =< G -> Pid ! {gvt, G}, wake(G, Rest);
+                _ -> Waiting
+            end
     end.
 
 write_ring(T, Frame, #s{sim = Sim, ring_size = Size, frames = K}) ->

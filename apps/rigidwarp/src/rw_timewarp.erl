@@ -37,7 +37,8 @@ start(#scene{spheres = Spheres, initial = Initial, duration_ms = End} = Scene, O
                        records = Records, counts = Counts, ring = Ring,
                        stats = counters:new(length(?STAT_NAMES), [write_concurrency]),
                        profile = maps:get(profile, Opts, false),
-                       lvts = atomics:new(lvt_slot(lists:max([0 | [I || #sphere{idx = I} <- Spheres]])), [{signed, false}])},
+                       lvts = atomics:new(lvt_slot(lists:max([0 | [I || #sphere{idx = I} <- Spheres]])), [{signed, false}]),
+                       gvt_now = new_gvt()},
             %% every body holds the simulation record: not the whole scene's
             %% bodies, which it never reads (a copy per body fills the heaps)
             BodySim = Sim#sim{scene = Scene#scene{spheres = [], initial = []}},
@@ -64,6 +65,11 @@ start(#scene{spheres = Spheres, initial = Initial, duration_ms = End} = Scene, O
 %% per body, so that bodies on different cores do not share lines.
 -spec lvt_slot(non_neg_integer()) -> pos_integer().
 lvt_slot(Idx) -> Idx * 8 + 1.
+
+new_gvt() ->
+    Ref = atomics:new(1, [{signed, true}]),
+    ok = atomics:put(Ref, 1, -1),
+    Ref.
 
 -spec end_ms(#sim{}) -> non_neg_integer().
 end_ms(#sim{end_ms = End}) -> End.
