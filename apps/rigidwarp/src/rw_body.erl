@@ -324,10 +324,29 @@ write_states([{T0, _} | _] = States, Last,
     Sts = list_to_tuple(StList),
     Disps = case DispList of undefined -> undefined; _ -> list_to_tuple(DispList) end,
     Packed = rw_states:pack(StList, DispList, M#model.rotation, M#model.ccd),
-    Payload = {Idx, self(), S, T0, Packed, bounds(Sts, Disps, S#sphere.radius)},
+    #st{p = {X, Y, Z}} = element(1, Sts),
+    Extents = extend(1, Sts, Disps, X, Y, Z, X, Y, Z),
+    Payload = {Idx, self(), S, T0, Packed, bounds(Extents, S#sphere.radius)},
     %% hashing the states to cells and buckets is collision-checking work
-    Plan = ?TIMED(D, ?ST_RED_TVHT, plan(cell_spans(States, Disps, D), Sim)),
+    Plan = ?TIMED(D, ?ST_RED_TVHT, plan(cell_spans(States, Disps, Extents, D), Sim)),
     maybe_delay(D),
+    {UpTo, Hits, Ids} = probe_commit(Plan, Payload, Last, Idx),
+    Where = [{B, Pid, Cells} || {B, Pid, Cells, _} <- Plan],
+    MaxWindow = max(1, D#d.stride div D#d.dt),
+    Window = case Hits of
+                 [] -> min(MaxWindow, 2 * D#d.window);
+                 _ -> min(MaxWindow, max(1, 2 * ((UpTo - T0) div D#d.dt + 1)))
+             end,
+    D1 = D#d{lvt = UpTo, written = [{T0, UpTo, Where, Packed} | Written], window = Window},
+    publish_lvt(send_events(UpTo, Hits, Ids, D1)).
+
+%% Probe the buckets of the plan in order under their locks, store the
+%% states up to the first LVT with contacts (or Last), and unlock:
+%% {UpTo, Hits by partner idx, contact ids by partner idx}.
+probe_commit([{_, Pid, Cells, Spans}], Payload, Last, _Idx) ->
+    {UpTo, Hs, Ids} = rw_bucket:probe_commit(Pid, self(), Cells, Payload, Spans, Last),
+    {UpTo, lists:ukeysort(1, [{element(1, E), {E, C}} || {E, C} <- Hs]), Ids};
+probe_commit(Plan, Payload, Last, Idx) ->
     Results = [rw_bucket:lock_probe(Pid, self(), Cells, Payload, Spans) || {_, Pid, Cells, Spans} <- Plan],
     {UpTo, Hits} = case [R || R <- Results, R =/= none] of
                        [] -> {Last, []};
@@ -338,14 +357,7 @@ write_states([{T0, _} | _] = States, Last,
                    end,
     Ids = maps:from_list([{OIdx, {UpTo, min(Idx, OIdx), max(Idx, OIdx), make_ref()}} || {OIdx, _} <- Hits]),
     [rw_bucket:commit_unlock(Pid, self(), UpTo, Ids) || {_, Pid, _, _} <- Plan],
-    Where = [{B, Pid, Cells} || {B, Pid, Cells, _} <- Plan],
-    MaxWindow = max(1, D#d.stride div D#d.dt),
-    Window = case Hits of
-                 [] -> min(MaxWindow, 2 * D#d.window);
-                 _ -> min(MaxWindow, max(1, 2 * ((UpTo - T0) div D#d.dt + 1)))
-             end,
-    D1 = D#d{lvt = UpTo, written = [{T0, UpTo, Where, Packed} | Written], window = Window},
-    publish_lvt(send_events(UpTo, Hits, Ids, D1)).
+    {UpTo, Hits, Ids}.
 
 %% The pre-response state at substep T (GVT =< T =< LVT): in the newest
 %% write that starts at or before T.
@@ -357,12 +369,11 @@ state_in(T, [_ | Older], Dt) -> state_in(T, Older, Dt).
 %% A box that holds the sphere at every state of a step (swept over each
 %% substep with CCD), padded against rounding: the buckets skip the
 %% narrowphase for two writes whose boxes are apart.
-bounds(Sts, Disps, R) ->
-    #st{p = {X, Y, Z}} = element(1, Sts),
-    {X0, Y0, Z0, X1, Y1, Z1} = extend(1, Sts, Disps, X, Y, Z, X, Y, Z),
+bounds({X0, Y0, Z0, X1, Y1, Z1}, R) ->
     Pad = R + 1.0e-9 * (R + lists:max([abs(X0), abs(Y0), abs(Z0), abs(X1), abs(Y1), abs(Z1)])),
     {X0 - Pad, Y0 - Pad, Z0 - Pad, X1 + Pad, Y1 + Pad, Z1 + Pad}.
 
+%% The extents of the positions (swept with CCD) over the step's states.
 extend(I, Sts, _Disps, X0, Y0, Z0, X1, Y1, Z1) when I > tuple_size(Sts) -> {X0, Y0, Z0, X1, Y1, Z1};
 extend(I, Sts, Disps, X0, Y0, Z0, X1, Y1, Z1) ->
     #st{p = {X, Y, Z}} = element(I, Sts),
@@ -378,9 +389,19 @@ extend(I, Sts, Disps, X0, Y0, Z0, X1, Y1, Z1) ->
 %% which the body's box (swept with CCD) touches it. Boxes seldom change
 %% between substeps, so cells are enumerated only when they do, and a box
 %% is hashed again only when it leaves the region that keeps its cells.
-cell_spans([{T0, St0} | Rest], Disps, #d{sim = #sim{scene = #scene{cell_size = C}}} = D) ->
+cell_spans([{T0, St0} | Rest], Disps, {X0, Y0, Z0, X1, Y1, Z1},
+           #d{sim = #sim{scene = #scene{cell_size = C}}, sphere = #sphere{radius = R}, dt = Dt} = D) ->
     Box = rw_hash:box(aabb(St0, disp_at(Disps, 1), D), C),
-    spans(Rest, 2, Disps, Box, rw_hash:region(Box, C), T0, T0, D, #{}).
+    Region = rw_hash:region(Box, C),
+    %% Without CCD a state's box is its position +- R, and rounding is
+    %% monotonic: if the boxes at the extreme positions keep the first
+    %% state's cells, every state's box does, and the step is one run.
+    case Disps =:= undefined andalso
+        rw_hash:in_region(rw_shape:sphere_aabb({X0, Y0, Z0}, R), Region) andalso
+        rw_hash:in_region(rw_shape:sphere_aabb({X1, Y1, Z1}, R), Region) of
+        true -> add_run(Box, T0, T0 + length(Rest) * Dt, #{});
+        false -> spans(Rest, 2, Disps, Box, Region, T0, T0, D, #{})
+    end.
 
 spans([], _I, _Disps, Box, _Region, Ta, Tb, _D, Acc) ->
     add_run(Box, Ta, Tb, Acc);

@@ -15,7 +15,7 @@
 -module(rw_bucket).
 -behaviour(gen_server).
 -include("rigidwarp.hrl").
--export([start_link/3, lock_probe/5, commit_unlock/4, lock_delete/5, unlock/2, gvt/2, profile/2]).
+-export([start_link/3, lock_probe/5, commit_unlock/4, probe_commit/6, lock_delete/5, unlock/2, gvt/2, profile/2]).
 -export([init/1, handle_call/3, handle_cast/2, handle_info/2]).
 -export_type([entry/0, payload/0, bounds/0, hit/0, cid/0]).
 
@@ -70,6 +70,15 @@ lock_probe(Bucket, Owner, Cells, Payload, Spans) ->
 -spec commit_unlock(pid(), pid(), non_neg_integer(), #{non_neg_integer() => cid()}) -> ok.
 commit_unlock(Bucket, Owner, UpTo, Ids) ->
     gen_server:cast(Bucket, {commit_unlock, Owner, UpTo, Ids}).
+
+%% lock_probe/5 and commit_unlock/4 in one call, for a write whose cells
+%% are all in this bucket: the states are stored up to the first LVT with
+%% contacts (or Last), and the contacts there get ids. No lock outlives
+%% the call, so no other writer waits on this one's messages.
+-spec probe_commit(pid(), pid(), [rw_hash:cell()], payload(), [span()], non_neg_integer()) ->
+          {UpTo :: non_neg_integer(), [hit()], #{non_neg_integer() => cid()}}.
+probe_commit(Bucket, Owner, Cells, Payload, Spans, Last) ->
+    gen_server:call(Bucket, {lock, Owner, Cells, {probe_commit, Payload, Spans, Last}}, infinity).
 
 %% Lock Cells, delete body Idx's states after R in them, and return the
 %% contacts those states had: [{Cid, Detector, Other}]. Unlock with unlock/2.
@@ -170,6 +179,12 @@ release(Owner, #state{locks = Locks, held = Held} = S) ->
         error -> grant(S)
     end.
 
+drop_locks(Owner, #state{locks = Locks, held = Held} = S) ->
+    case maps:take(Owner, Held) of
+        {Cells, Held1} -> S#state{locks = maps:without(Cells, Locks), held = Held1};
+        error -> S
+    end.
+
 grant(#state{waiting = []} = S) -> S;
 grant(#state{waiting = Waiting} = S) -> grant(Waiting, [], S).
 
@@ -189,6 +204,19 @@ grant([{From, Owner, Cells, Op} = W | Rest], Kept, S) ->
 locked_op(Owner, {probe, Payload, Spans}, S) ->
     Result = probe(Payload, Spans, S),
     {Result, S#state{probes = (S#state.probes)#{Owner => {Payload, Spans, Result}}}};
+locked_op(Owner, {probe_commit, {Idx, _, _, _, _, _} = Payload, Spans, Last}, S) ->
+    Result = probe(Payload, Spans, S),
+    {UpTo, Hits} = case Result of
+                       none -> {Last, []};
+                       Found -> Found
+                   end,
+    Ids = maps:from_list([{OIdx, {UpTo, min(Idx, OIdx), max(Idx, OIdx), make_ref()}}
+                          || {{OIdx, _, _, _, _}, _} <- Hits]),
+    S1 = commit(Owner, UpTo, Ids, S#state{probes = (S#state.probes)#{Owner => {Payload, Spans, Result}}}),
+    %% The cells were free when this call took them, so freeing them again
+    %% changes nothing for the requests still waiting (and granting here
+    %% would re-enter grant/3, which may be running this very call).
+    {{UpTo, Hits, Ids}, drop_locks(Owner, S1)};
 locked_op(_Owner, {delete, Idx, R, Cells}, S) ->
     delete(Idx, R, Cells, S).
 
