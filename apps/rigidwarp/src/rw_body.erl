@@ -324,8 +324,11 @@ write_states([{T0, _} | _] = States, Last,
     Sts = list_to_tuple(StList),
     Disps = case DispList of undefined -> undefined; _ -> list_to_tuple(DispList) end,
     Packed = rw_states:pack(StList, DispList, M#model.rotation, M#model.ccd),
-    #st{p = {X, Y, Z}} = element(1, Sts),
-    Extents = extend(1, Sts, Disps, X, Y, Z, X, Y, Z),
+    #st{p = {X, Y, Z}} = hd(StList),
+    Extents = case DispList of
+                  undefined -> extents(StList, X, Y, Z, X, Y, Z);
+                  _ -> extend(1, Sts, Disps, X, Y, Z, X, Y, Z)
+              end,
     Payload = {Idx, self(), S, T0, Packed, bounds(Extents, S#sphere.radius)},
     %% hashing the states to cells and buckets is collision-checking work
     Plan = ?TIMED(D, ?ST_RED_TVHT, plan(cell_spans(States, Disps, Extents, D), Sim)),
@@ -373,7 +376,14 @@ bounds({X0, Y0, Z0, X1, Y1, Z1}, R) ->
     Pad = R + 1.0e-9 * (R + lists:max([abs(X0), abs(Y0), abs(Z0), abs(X1), abs(Y1), abs(Z1)])),
     {X0 - Pad, Y0 - Pad, Z0 - Pad, X1 + Pad, Y1 + Pad, Z1 + Pad}.
 
-%% The extents of the positions (swept with CCD) over the step's states.
+%% The extents of the positions over the step's states (a hot loop: the
+%% comparisons are written out rather than calls to min/2 and max/2).
+extents([], X0, Y0, Z0, X1, Y1, Z1) -> {X0, Y0, Z0, X1, Y1, Z1};
+extents([#st{p = {X, Y, Z}} | Rest], X0, Y0, Z0, X1, Y1, Z1) ->
+    extents(Rest, if X < X0 -> X; true -> X0 end, if Y < Y0 -> Y; true -> Y0 end, if Z < Z0 -> Z; true -> Z0 end,
+            if X > X1 -> X; true -> X1 end, if Y > Y1 -> Y; true -> Y1 end, if Z > Z1 -> Z; true -> Z1 end).
+
+%% The same, swept over each substep (CCD).
 extend(I, Sts, _Disps, X0, Y0, Z0, X1, Y1, Z1) when I > tuple_size(Sts) -> {X0, Y0, Z0, X1, Y1, Z1};
 extend(I, Sts, Disps, X0, Y0, Z0, X1, Y1, Z1) ->
     #st{p = {X, Y, Z}} = element(I, Sts),

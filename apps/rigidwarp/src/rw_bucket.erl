@@ -228,19 +228,23 @@ probe({Idx, _, _, _, _, _} = Mine, Spans, #state{cells = Cells} = S) ->
     Windows = lists:foldl(
                 fun({Cell, Ta, Tb}, Acc) ->
                         case Cells of
-                            #{Cell := ByIdx} ->
-                                maps:fold(fun(OIdx, _, A) when OIdx =:= Idx -> A;
-                                             (_, Segs, A) -> windows(Segs, Ta, Tb, A)
-                                          end, Acc, ByIdx);
+                            #{Cell := ByIdx} -> cell_windows(maps:to_list(ByIdx), Idx, Ta, Tb, Acc);
                             _ -> Acc
                         end
                 end, #{}, Spans),
-    maps:fold(fun(_, {Other, Lo, Hi}, Best) ->
-                      case apart(Mine, Other) of
-                          true -> Best;
-                          false -> scan(Lo, bound(Hi, Best), Mine, Other, Best, S)
-                      end
-              end, none, Windows).
+    %% (maps:to_list is one BIF call; maps:fold steps an iterator in Erlang)
+    scan_windows(maps:to_list(Windows), Mine, none, S).
+
+cell_windows([], _Idx, _Ta, _Tb, Acc) -> Acc;
+cell_windows([{Idx, _} | Rest], Idx, Ta, Tb, Acc) -> cell_windows(Rest, Idx, Ta, Tb, Acc);
+cell_windows([{_, Segs} | Rest], Idx, Ta, Tb, Acc) -> cell_windows(Rest, Idx, Ta, Tb, windows(Segs, Ta, Tb, Acc)).
+
+scan_windows([], _Mine, Best, _S) -> Best;
+scan_windows([{_, {Other, Lo, Hi}} | Rest], Mine, Best, S) ->
+    case apart(Mine, Other) of
+        true -> scan_windows(Rest, Mine, Best, S);
+        false -> scan_windows(Rest, Mine, scan(Lo, bound(Hi, Best), Mine, Other, Best, S), S)
+    end.
 
 %% One other body's segments in a cell, newest first: skip those after the
 %% window, stop at the first one before it; merge each overlap into the
