@@ -65,8 +65,16 @@ sphere_fixture(P, R, {plane, N, Off}) ->
         true -> [{0, #contact{n = rw_vec:neg(N), depth = Depth}}];
         false -> []
     end;
-sphere_fixture(P, R, {box, C, E, hollow}) ->
-    walls(P, R, C, E);
+sphere_fixture({PX, PY, PZ} = P, R, {box, {CX, CY, CZ} = C, {EX, EY, EZ} = E, hollow}) ->
+    %% Most substeps a sphere is well inside its container: test the six
+    %% depths as walls/4 computes them (a unit normal's dot product is the
+    %% coordinate itself) before building any contact.
+    case R - (PX - (CX - EX)) > 0.0 orelse R - (-PX + (CX + EX)) > 0.0 orelse
+         R - (PY - (CY - EY)) > 0.0 orelse R - (-PY + (CY + EY)) > 0.0 orelse
+         R - (PZ - (CZ - EZ)) > 0.0 orelse R - (-PZ + (CZ + EZ)) > 0.0 of
+        true -> walls(P, R, C, E);
+        false -> []
+    end;
 sphere_fixture(P, R, {box, C, E, solid}) ->
     solid_box(P, R, C, E);
 sphere_fixture(P, R, {cylinder, C, Axis, CR, H}) ->

@@ -13,7 +13,7 @@
          prop_hash_covers_aabb/0, prop_hash_region_keeps_box/0, prop_normals_unit/0, prop_depth_along_normal/0,
          prop_cylinder_depth_along_normal/0, prop_swept_toi/0,
          prop_degenerate_input/0, prop_quat_integrate/0, prop_free_flight/0,
-         prop_respond_is_ordered_fold/0]).
+         prop_respond_is_ordered_fold/0, prop_container_is_six_walls/0]).
 %% generators, for use from a shell: proper_gen:pick(rw_physics_prop:pair_case())
 -export([position/0, far_vec/0, vec/0, direction/0, quat/0, sphere/1, model/0, state/1, pair_case/0,
          pair_case/1, fixture_probe/0]).
@@ -384,6 +384,25 @@ prop_hash_covers_aabb() ->
 %% region is what lets a body skip hashing a state again. Corners are moved
 %% by nothing, by a float step, by a fraction of a cell, or onto the exact
 %% cell borders (where grid scenes put spheres).
+%% A container (hollow box) touches a sphere exactly where its six walls,
+%% each a plane facing the centre, do (its quick inside test must never
+%% drop a contact), spheres placed near and across the walls.
+prop_container_is_six_walls() ->
+    ?FORALL({C, E, R, Frac}, {vec(), {float(0.5, 20.0), float(0.5, 20.0), float(0.5, 20.0)}, float(0.01, 2.0),
+                              {float(-1.3, 1.3), float(-1.3, 1.3), float(-1.3, 1.3)}},
+            ?SAFE(begin
+                {CX, CY, CZ} = C, {EX, EY, EZ} = E, {FX, FY, FZ} = Frac,
+                P = {CX + FX * EX, CY + FY * EY, CZ + FZ * EZ},
+                Walls = [{0, {{1.0, 0.0, 0.0}, CX - EX}}, {1, {{-1.0, 0.0, 0.0}, -(CX + EX)}},
+                         {2, {{0.0, 1.0, 0.0}, CY - EY}}, {3, {{0.0, -1.0, 0.0}, -(CY + EY)}},
+                         {4, {{0.0, 0.0, 1.0}, CZ - EZ}}, {5, {{0.0, 0.0, -1.0}, -(CZ + EZ)}}],
+                Expected = [{F, Contact} || {F, {N, Off}} <- Walls,
+                                            {0, Contact} <- rw_narrow:sphere_fixture(P, R, {plane, N, Off})],
+                Got = rw_narrow:sphere_fixture(P, R, {box, C, E, hollow}),
+                ?WHENFAIL(report("sphere ~p r ~p in box ~p ~p: ~p, walls as planes ~p", [P, R, C, E, Got, Expected]),
+                          Got =:= Expected)
+            end)).
+
 prop_hash_region_keeps_box() ->
     ?FORALL({{Min, Max, S}, Moves}, {hash_box(), vector(6, corner_move())},
             ?SAFE(begin
