@@ -300,10 +300,11 @@ effects(T, #st{} = St, #d{model = M, sphere = S, contacts = Contacts, sim = Sim}
     Fixed = [{{FIdx, Feature}, rw_response:fixture(M, S, St, C)}
              || #fixture{idx = FIdx, shape = Shape} <- Sim#sim.scene#scene.fixtures,
                 {Feature, C} <- fixture_contacts(St, Shape, D)],
-    case Bodies ++ Fixed of
-        [] -> [];
-        [{_, E}] -> [E];
-        All -> [E || {_, E} <- lists:keysort(1, All)]
+    case {Bodies, Fixed} of
+        {[], []} -> [];
+        {[{_, E}], []} -> [E];
+        {[], [{_, E}]} -> [E];
+        _ -> [E || {_, E} <- lists:keysort(1, Bodies ++ Fixed)]
     end.
 
 fixture_contacts(#st{p = P}, Shape, #d{model = #model{ccd = false}, sphere = #sphere{radius = R}}) ->

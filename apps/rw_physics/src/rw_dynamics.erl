@@ -10,6 +10,7 @@
 
 -spec respond(#st{}, [rw_response:effect()]) ->
           {V :: rw_vec:vec(), W :: rw_vec:vec() | undefined, U :: rw_vec:vec()}.
+respond(#st{v = V, w = W}, []) -> {V, W, {0.0, 0.0, 0.0}};
 respond(#st{v = V, w = W}, Effects) ->
     sum(Effects, V, W, rw_vec:zero()).
 
