@@ -92,10 +92,10 @@ handle_cast(_Msg, S) -> {noreply, S}.
 
 -spec handle_info(term(), #s{}) -> {noreply, #s{}} | {stop, term(), #s{}}.
 handle_info({complete, T}, #s{complete = C, sim = #sim{profile = false}} = S) ->
-    {noreply, advance(S#s{complete = C#{T => true}})};
+    {noreply, advance(S#s{complete = more_complete(C#{T => true})})};
 handle_info({complete, T}, #s{complete = C, sim = #sim{stats = Stats}} = S) ->
     T0 = reductions(),
-    S1 = advance(S#s{complete = C#{T => true}}),
+    S1 = advance(S#s{complete = more_complete(C#{T => true})}),
     %% counter 10 is gvt_reductions (rw_timewarp's stat names)
     counters:add(Stats, 10, reductions() - T0),
     {noreply, S1};
@@ -134,7 +134,27 @@ sync_after(G, F, S, End) -> min(min((G div F + 1) * F, (G div S + 1) * S), End).
 
 is_frame(T, #sim{scene = #scene{frame_ms = F}, end_ms = End}) -> T rem F =:= 0 orelse T =:= End.
 
-advance(#s{complete = C, sim = #sim{end_ms = End} = Sim} = S) ->
+%% A body that commits several sync points in one step sends their
+%% completions back to back: take them all, so that GVT advances over them
+%% at once and bodies and buckets hear of the last one only.
+more_complete(C) ->
+    receive
+        {complete, T} -> more_complete(C#{T => true})
+    after 0 -> C
+    end.
+
+advance(#s{gvt = G0} = S) ->
+    #s{gvt = G, sim = Sim} = S1 = advance_over(S),
+    case G > G0 of
+        true ->
+            ok = atomics:put(Sim#sim.gvt_now, 1, G),
+            [rw_bucket:gvt(B, G) || B <- tuple_to_list(Sim#sim.buckets)],
+            S1#s{waiting = wake(G, S1#s.waiting)};
+        false ->
+            S1
+    end.
+
+advance_over(#s{complete = C, sim = #sim{end_ms = End} = Sim} = S) ->
     Next = next_sync(S),
     case maps:take(Next, C) of
         {true, C1} ->
@@ -149,13 +169,11 @@ advance(#s{complete = C, sim = #sim{end_ms = End} = Sim} = S) ->
                  end,
             ets:select_delete(Sim#sim.records, [{{{Next, '_'}, '_'}, [], [true]}]),
             ets:delete(Sim#sim.counts, Next),
-            ok = atomics:put(Sim#sim.gvt_now, 1, Next),
-            Waiting = wake(Next, S#s.waiting),
-            [rw_bucket:gvt(B, Next) || B <- tuple_to_list(Sim#sim.buckets)],
-            S1 = S0#s{gvt = Next, complete = C1, last_advance = now_ms(), waiting = Waiting},
+            S1 = S0#s{gvt = Next, complete = C1, last_advance = now_ms()},
             case Next of
-                End -> ok = notify(S#s.owner, {rw_done, self(), End}), S1;
-                _ -> advance(S1)
+                End -> ok = atomics:put(Sim#sim.gvt_now, 1, End),
+                       ok = notify(S#s.owner, {rw_done, self(), End}), S1;
+                _ -> advance_over(S1)
             end;
         error ->
             S
