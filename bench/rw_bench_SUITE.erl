@@ -116,7 +116,7 @@ features(Config) ->
                   Measured = [begin
                                   Scene = load_with_model(Name, Model, Config),
                                   Runs = [work(Scene, Cores) || _ <- lists:seq(1, ?config(repeats, Config))],
-                                  {Variant, median([R || {R, _} <- Runs]), [W || {_, W} <- Runs]}
+                                  {Variant, median([R || {R, _, _} <- Runs]), [W || {_, W, _} <- Runs]}
                               end || {Variant, Model} <- Variants],
                   {_, BaseReds, BaseWalls} = hd(Measured),
                   [[Name, Variant, Reds, Reds / BaseReds | stats(Walls) ++ [median(Walls) / median(BaseWalls)]]
@@ -133,15 +133,10 @@ features(Config) ->
 contact_vs_isolated(Config) ->
     Cores = erlang:system_info(schedulers),
     Rows = [begin
-                Scene = load(Name, Config, #{stride => Stride}),
-                {R0, _} = erlang:statistics(exact_reductions),
-                T0 = erlang:monotonic_time(microsecond),
-                {ok, Stats} = with_schedulers(Cores, fun() -> rw_timewarp:run(Scene, #{}) end),
-                Wall = (erlang:monotonic_time(microsecond) - T0) / 1000,
-                {R1, _} = erlang:statistics(exact_reductions),
+                {Reds, Wall, Stats} = work(load(Name, Config, #{stride => Stride}), Cores),
                 #{committed_substeps := Committed, computed_substeps := Computed, steps := Steps,
                   events := Events, efficiency := Eff} = Stats,
-                [Name, Stride, Committed, (R1 - R0) / Committed, Steps / Committed, Computed / Steps,
+                [Name, Stride, Committed, Reds / Committed, Steps / Committed, Computed / Steps,
                  Events / Committed, Eff, Wall]
             end || Name <- ["parallel_200", "bouncing_200_100"], Stride <- [16, 64, 512]],
     write_csv("contact.csv", ["scene", "stride_ms", "committed_substeps", "reductions_per_substep",
@@ -159,16 +154,16 @@ load_with_model(Name, Model, Config) ->
     {ok, Scene} = rw_scene:from_map(Map1, #{file => File, overrides => #{duration_ms => ?config(ms, Config)}}),
     Scene.
 
-%% Reductions of the whole VM and wall time (ms) of one Time Warp run on S
-%% schedulers.
+%% Reductions of the whole VM, wall time (ms) and the summary of one Time
+%% Warp run on S schedulers.
 work(Scene, S) ->
     with_schedulers(S, fun() ->
                                {R0, _} = erlang:statistics(exact_reductions),
                                T0 = erlang:monotonic_time(microsecond),
-                               {ok, _} = rw_timewarp:run(Scene, #{}),
+                               {ok, Stats} = rw_timewarp:run(Scene, #{}),
                                Wall = (erlang:monotonic_time(microsecond) - T0) / 1000,
                                {R1, _} = erlang:statistics(exact_reductions),
-                               {R1 - R0, Wall}
+                               {R1 - R0, Wall, Stats}
                        end).
 
 load(Name, Config) -> load(Name, Config, #{}).

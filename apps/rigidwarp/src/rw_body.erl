@@ -359,7 +359,7 @@ probe_commit(Plan, Payload, Last, Idx) ->
                            {TStar, lists:ukeysort(1, [{element(1, E), {E, C}} || {T, Hs} <- Found, T =:= TStar,
                                                                                   {E, C} <- Hs])}
                    end,
-    Ids = maps:from_list([{OIdx, {UpTo, min(Idx, OIdx), max(Idx, OIdx), make_ref()}} || {OIdx, _} <- Hits]),
+    Ids = rw_bucket:contact_ids(UpTo, Idx, [OIdx || {OIdx, _} <- Hits]),
     [rw_bucket:commit_unlock(Pid, self(), UpTo, Ids) || {_, Pid, _, _} <- Plan],
     {UpTo, Hits, Ids}.
 
@@ -384,16 +384,13 @@ extents([#st{p = {X, Y, Z}} | Rest], X0, Y0, Z0, X1, Y1, Z1) ->
     extents(Rest, if X < X0 -> X; true -> X0 end, if Y < Y0 -> Y; true -> Y0 end, if Z < Z0 -> Z; true -> Z0 end,
             if X > X1 -> X; true -> X1 end, if Y > Y1 -> Y; true -> Y1 end, if Z > Z1 -> Z; true -> Z1 end).
 
-%% The same, swept over each substep (CCD).
+%% The same, swept over each substep (CCD: Disps holds the displacements).
 extend(I, Sts, _Disps, X0, Y0, Z0, X1, Y1, Z1) when I > tuple_size(Sts) -> {X0, Y0, Z0, X1, Y1, Z1};
 extend(I, Sts, Disps, X0, Y0, Z0, X1, Y1, Z1) ->
     #st{p = {X, Y, Z}} = element(I, Sts),
-    {Xa, Ya, Za, Xb, Yb, Zb} = case Disps of
-                                   undefined -> {X, Y, Z, X, Y, Z};
-                                   _ -> {DX, DY, DZ} = element(I, Disps),
-                                        {min(X, X + DX), min(Y, Y + DY), min(Z, Z + DZ),
-                                         max(X, X + DX), max(Y, Y + DY), max(Z, Z + DZ)}
-                               end,
+    {DX, DY, DZ} = element(I, Disps),
+    {Xa, Ya, Za} = {min(X, X + DX), min(Y, Y + DY), min(Z, Z + DZ)},
+    {Xb, Yb, Zb} = {max(X, X + DX), max(Y, Y + DY), max(Z, Z + DZ)},
     extend(I + 1, Sts, Disps, min(X0, Xa), min(Y0, Ya), min(Z0, Za), max(X1, Xb), max(Y1, Yb), max(Z1, Zb)).
 
 %% For each cell touched during the step, the first and last substep at
@@ -575,8 +572,7 @@ wake_me(#d{lvt = Lvt, gvt = G, stride = S, frame_ms = F, end_ms = End, wake_at =
     MinStep = min_step(D),
     At = max(G + 1, lists:min([Lvt + MinStep - S, End - S, max(Lvt div F * F, Lvt div S * S)])),
     case Asked of
-        none -> ok = rw_gvt:wake_at(D#d.sim#sim.gvt, self(), At), D#d{wake_at = At};
-        _ when Asked =< At -> D;
+        _ when is_integer(Asked), Asked =< At -> D;   % already asked for as early
         _ -> ok = rw_gvt:wake_at(D#d.sim#sim.gvt, self(), At), D#d{wake_at = At}
     end.
 

@@ -15,7 +15,8 @@
 -module(rw_bucket).
 -behaviour(gen_server).
 -include("rigidwarp.hrl").
--export([start_link/3, lock_probe/5, commit_unlock/4, probe_commit/6, lock_delete/5, unlock/2, gvt/2, profile/2]).
+-export([start_link/3, lock_probe/5, commit_unlock/4, probe_commit/6, lock_delete/5, unlock/2, gvt/2, profile/2,
+         contact_ids/3]).
 -export([init/1, handle_call/3, handle_cast/2, handle_info/2]).
 -export_type([entry/0, payload/0, bounds/0, hit/0, cid/0]).
 
@@ -79,6 +80,12 @@ commit_unlock(Bucket, Owner, UpTo, Ids) ->
           {UpTo :: non_neg_integer(), [hit()], #{non_neg_integer() => cid()}}.
 probe_commit(Bucket, Owner, Cells, Payload, Spans, Last) ->
     gen_server:call(Bucket, {lock, Owner, Cells, {probe_commit, Payload, Spans, Last}}, infinity).
+
+%% The ids of body Idx's contacts at T with the bodies OIdxs, by partner:
+%% {T, lower idx, higher idx, unique}.
+-spec contact_ids(non_neg_integer(), non_neg_integer(), [non_neg_integer()]) -> #{non_neg_integer() => cid()}.
+contact_ids(T, Idx, OIdxs) ->
+    maps:from_list([{OIdx, {T, min(Idx, OIdx), max(Idx, OIdx), make_ref()}} || OIdx <- OIdxs]).
 
 %% Lock Cells, delete body Idx's states after R in them, and return the
 %% contacts those states had: [{Cid, Detector, Other}]. Unlock with unlock/2.
@@ -173,11 +180,7 @@ take(Cells, Owner, #state{locks = Locks, held = Held} = S) ->
             held = Held#{Owner => Cells ++ maps:get(Owner, Held, [])}}.
 
 %% Drop Owner's locks and grant waiting requests that now fit, in order.
-release(Owner, #state{locks = Locks, held = Held} = S) ->
-    case maps:take(Owner, Held) of
-        {Cells, Held1} -> grant(S#state{locks = maps:without(Cells, Locks), held = Held1});
-        error -> grant(S)
-    end.
+release(Owner, S) -> grant(drop_locks(Owner, S)).
 
 drop_locks(Owner, #state{locks = Locks, held = Held} = S) ->
     case maps:take(Owner, Held) of
@@ -210,9 +213,8 @@ locked_op(Owner, {probe_commit, {Idx, _, _, _, _, _} = Payload, Spans, Last}, S)
                        none -> {Last, []};
                        Found -> Found
                    end,
-    Ids = maps:from_list([{OIdx, {UpTo, min(Idx, OIdx), max(Idx, OIdx), make_ref()}}
-                          || {{OIdx, _, _, _, _}, _} <- Hits]),
-    S1 = commit(Owner, UpTo, Ids, S#state{probes = (S#state.probes)#{Owner => {Payload, Spans, Result}}}),
+    Ids = contact_ids(UpTo, Idx, [OIdx || {{OIdx, _, _, _, _}, _} <- Hits]),
+    S1 = store(Owner, Payload, Spans, Result, UpTo, Ids, S),
     %% The cells were free when this call took them, so freeing them again
     %% changes nothing for the requests still waiting (and granting here
     %% would re-enter grant/3, which may be running this very call).
@@ -328,8 +330,12 @@ narrow(#model{ccd = true}, {_, _, #sphere{radius = RA}, #st{p = PA}, DA},
        {_, _, #sphere{radius = RB}, #st{p = PB}, DB}) ->
     rw_narrow:swept_sphere_sphere(PA, DA, RA, PB, DB, RB).
 
-commit(Owner, UpTo, Ids, #state{probes = Probes, cells = Cells} = S) ->
-    {{{Idx, _, _, _, _, _} = Payload, Spans, Result}, Probes1} = maps:take(Owner, Probes),
+commit(Owner, UpTo, Ids, #state{probes = Probes} = S) ->
+    {{Payload, Spans, Result}, Probes1} = maps:take(Owner, Probes),
+    store(Owner, Payload, Spans, Result, UpTo, Ids, S#state{probes = Probes1}).
+
+%% Store a probed payload's states up to UpTo and the contacts it found there.
+store(Owner, {Idx, _, _, _, _, _} = Payload, Spans, Result, UpTo, Ids, #state{cells = Cells} = S) ->
     Cells1 = lists:foldl(fun({Cell, Ta, Tb}, Acc) when Ta =< UpTo ->
                                  Seg = {Ta, min(Tb, UpTo), Payload},
                                  case Acc of
@@ -339,7 +345,7 @@ commit(Owner, UpTo, Ids, #state{probes = Probes, cells = Cells} = S) ->
                                  end;
                             (_, Acc) -> Acc
                          end, Cells, Spans),
-    S1 = S#state{probes = Probes1, cells = Cells1},
+    S1 = S#state{cells = Cells1},
     case Result of
         {UpTo, Hits} ->
             lists:foldl(fun({{OIdx, OPid, _, _, _}, _}, Acc) ->

@@ -144,12 +144,17 @@ more_complete(C) ->
     end.
 
 advance(#s{gvt = G0} = S) ->
-    #s{gvt = G, sim = Sim} = S1 = advance_over(S),
+    #s{gvt = G, sim = #sim{end_ms = End} = Sim} = S1 = advance_over(S),
     case G > G0 of
         true ->
             ok = atomics:put(Sim#sim.gvt_now, 1, G),
             [rw_bucket:gvt(B, G) || B <- tuple_to_list(Sim#sim.buckets)],
-            S1#s{waiting = wake(G, S1#s.waiting)};
+            S2 = S1#s{waiting = wake(G, S1#s.waiting)},
+            ok = case G of
+                     End -> notify(S#s.owner, {rw_done, self(), End});
+                     _ -> ok
+                 end,
+            S2;
         false ->
             S1
     end.
@@ -171,8 +176,7 @@ advance_over(#s{complete = C, sim = #sim{end_ms = End} = Sim} = S) ->
             ets:delete(Sim#sim.counts, Next),
             S1 = S0#s{gvt = Next, complete = C1, last_advance = now_ms()},
             case Next of
-                End -> ok = atomics:put(Sim#sim.gvt_now, 1, End),
-                       ok = notify(S#s.owner, {rw_done, self(), End}), S1;
+                End -> S1;
                 _ -> advance_over(S1)
             end;
         error ->
