@@ -298,8 +298,8 @@ effects(T, #st{} = St, #d{model = M, sphere = S, contacts = Contacts, sim = Sim}
                  _ -> []
              end,
     Fixed = [{{FIdx, Feature}, rw_response:fixture(M, S, St, C)}
-             || #fixture{idx = FIdx, shape = Shape} <- Sim#sim.scene#scene.fixtures,
-                {Feature, C} <- fixture_contacts(St, Shape, D)],
+             || #fixture{idx = FIdx} = Fixture <- Sim#sim.scene#scene.fixtures,
+                {Feature, C} <- fixture_contacts(St, Fixture, D)],
     case {Bodies, Fixed} of
         {[], []} -> [];
         {[{_, E}], []} -> [E];
@@ -307,10 +307,10 @@ effects(T, #st{} = St, #d{model = M, sphere = S, contacts = Contacts, sim = Sim}
         _ -> [E || {_, E} <- lists:keysort(1, Bodies ++ Fixed)]
     end.
 
-fixture_contacts(#st{p = P}, Shape, #d{model = #model{ccd = false}, sphere = #sphere{radius = R}}) ->
-    rw_narrow:sphere_fixture(P, R, Shape);
-fixture_contacts(#st{p = P} = St, Shape, #d{model = #model{ccd = true} = M, sphere = #sphere{radius = R}}) ->
-    rw_narrow:swept_sphere_fixture(P, rw_integrate:free_displacement(M, St), R, Shape).
+fixture_contacts(#st{p = P}, Fixture, #d{model = #model{ccd = false}, sphere = #sphere{radius = R}}) ->
+    rw_narrow:fixture(P, R, Fixture);
+fixture_contacts(#st{p = P} = St, Fixture, #d{model = #model{ccd = true} = M, sphere = #sphere{radius = R}}) ->
+    rw_narrow:swept_fixture(P, rw_integrate:free_displacement(M, St), R, Fixture).
 
 %% Write States ([{T, St}], consecutive substeps) to the TVHT under lock;
 %% stop at the first substep with contacts and send the events for them.

@@ -90,8 +90,8 @@ substep(#scene{model = #model{ccd = Ccd} = M, fixtures = Fixtures, cell_size = C
           fun(K, {Acc, C}) ->
                   S = element(K, Bodies), St = element(K, States),
                   Hits = [{{FIdx, Feature}, rw_response:fixture(M, S, St, Contact)}
-                          || #fixture{idx = FIdx, shape = Shape} <- Fixtures,
-                             {Feature, Contact} <- fixture_contacts(S, St, K, Disp, Shape)],
+                          || #fixture{idx = FIdx} = Fixture <- Fixtures,
+                             {Feature, Contact} <- fixture_contacts(S, St, K, Disp, Fixture)],
                   {maps:update_with(K, fun(L) -> Hits ++ L end, Acc), C + length(Hits)}
           end, {Effects1, 0}, lists:seq(1, N)),
     Results = [begin
@@ -108,10 +108,10 @@ pair_contact(#sphere{radius = RA}, #st{p = PA}, #sphere{radius = RB}, #st{p = PB
 pair_contact(#sphere{radius = RA}, #st{p = PA}, #sphere{radius = RB}, #st{p = PB}, A, B, Disp) ->
     rw_narrow:swept_sphere_sphere(PA, element(A, Disp), RA, PB, element(B, Disp), RB).
 
-fixture_contacts(#sphere{radius = R}, #st{p = P}, _K, undefined, Shape) ->
-    rw_narrow:sphere_fixture(P, R, Shape);
-fixture_contacts(#sphere{radius = R}, #st{p = P}, K, Disp, Shape) ->
-    rw_narrow:swept_sphere_fixture(P, element(K, Disp), R, Shape).
+fixture_contacts(#sphere{radius = R}, #st{p = P}, _K, undefined, Fixture) ->
+    rw_narrow:fixture(P, R, Fixture);
+fixture_contacts(#sphere{radius = R}, #st{p = P}, K, Disp, Fixture) ->
+    rw_narrow:swept_fixture(P, element(K, Disp), R, Fixture).
 
 %% Pairs (lower position first) whose boxes share a cell of the grid.
 candidate_pairs(Bodies, States, Disp, Cell) ->

@@ -281,7 +281,7 @@ rank(Parsed) ->
     [ranked(Idx, Body) || {Idx, Body} <- enumerate(Sorted)].
 
 ranked(Idx, {sphere, Id, R, M, St, P}) -> {sphere, rw_shape:sphere(Idx, Id, R, M), St, P};
-ranked(Idx, {fixture, Id, Shape, P}) -> {fixture, #fixture{idx = Idx, id = Id, shape = Shape}, P}.
+ranked(Idx, {fixture, Id, Shape, P}) -> {fixture, rw_shape:fixture(Idx, Id, Shape), P}.
 
 %% Angular state exists only where rotation is modelled.
 with_rotation(Spheres, #model{rotation = true}) ->

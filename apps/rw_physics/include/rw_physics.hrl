@@ -35,11 +35,14 @@
     w = undefined :: undefined | rw_vec:vec()
 }).
 
-%% A static body; never moves, so it is not a process.
+%% A static body; never moves, so it is not a process. box bounds a
+%% bounded shape, padded against rounding (rw_shape:fixture_box/1), so that
+%% the narrowphase skips a sphere far from it with six comparisons.
 -record(fixture, {
     idx :: non_neg_integer(),
     id :: binary(),
-    shape :: rw_shape:static_shape()
+    shape :: rw_shape:static_shape(),
+    box = unbounded :: rw_shape:box6() | unbounded
 }).
 
 %% A contact as the narrowphase reports it: normal from the first body (the

@@ -5,7 +5,8 @@
 %% definite unit normal, never NaN.
 -module(rw_narrow).
 -include("rw_physics.hrl").
--export([sphere_sphere/4, swept_sphere_sphere/6, sphere_fixture/3, swept_sphere_fixture/4]).
+-export([sphere_sphere/4, swept_sphere_sphere/6, sphere_fixture/3, swept_sphere_fixture/4,
+         fixture/3, swept_fixture/4]).
 -export_type([feature_contact/0]).
 
 %% A fixture can touch a sphere at several features (a container's walls).
@@ -79,6 +80,31 @@ sphere_fixture(P, R, {box, C, E, solid}) ->
     solid_box(P, R, C, E);
 sphere_fixture(P, R, {cylinder, C, Axis, CR, H}) ->
     cylinder(P, R, C, Axis, CR, H).
+
+%% The same against a fixture with its bounding box: a sphere farther than
+%% its radius outside the box is rejected without testing the shape (every
+%% body tests every fixture at every substep, and most are far away).
+-spec fixture(rw_vec:vec(), float(), #fixture{}) -> [feature_contact()].
+fixture(P, R, #fixture{shape = Shape, box = unbounded}) ->
+    sphere_fixture(P, R, Shape);
+fixture({X, Y, Z} = P, R, #fixture{shape = Shape, box = {X0, Y0, Z0, X1, Y1, Z1}}) ->
+    case X + R < X0 orelse X - R > X1 orelse Y + R < Y0 orelse Y - R > Y1 orelse
+         Z + R < Z0 orelse Z - R > Z1 of
+        true -> [];
+        false -> sphere_fixture(P, R, Shape)
+    end.
+
+%% Swept: the box of the whole path must miss it.
+-spec swept_fixture(rw_vec:vec(), rw_vec:vec(), float(), #fixture{}) -> [feature_contact()].
+swept_fixture(P, D, R, #fixture{shape = Shape, box = unbounded}) ->
+    swept_sphere_fixture(P, D, R, Shape);
+swept_fixture({X, Y, Z} = P, {DX, DY, DZ} = D, R, #fixture{shape = Shape, box = {X0, Y0, Z0, X1, Y1, Z1}}) ->
+    case max(X, X + DX) + R < X0 orelse min(X, X + DX) - R > X1 orelse
+         max(Y, Y + DY) + R < Y0 orelse min(Y, Y + DY) - R > Y1 orelse
+         max(Z, Z + DZ) + R < Z0 orelse min(Z, Z + DZ) - R > Z1 of
+        true -> [];
+        false -> swept_sphere_fixture(P, D, R, Shape)
+    end.
 
 %% Sphere at P moving by D during the substep.
 -spec swept_sphere_fixture(rw_vec:vec(), rw_vec:vec(), float(), rw_shape:static_shape()) ->

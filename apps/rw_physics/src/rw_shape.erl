@@ -2,14 +2,29 @@
 %% their properties live in #sphere{} (see rw_physics.hrl).
 -module(rw_shape).
 -include("rw_physics.hrl").
--export([sphere/4, inertia_inv/2, sphere_aabb/2, swept_aabb/3, fixture_aabb/1]).
--export_type([static_shape/0, aabb/0]).
+-export([sphere/4, inertia_inv/2, sphere_aabb/2, swept_aabb/3, fixture_aabb/1, fixture/3]).
+-export_type([static_shape/0, aabb/0, box6/0]).
 
 -type static_shape() ::
         {plane, Normal :: rw_vec:vec(), Offset :: float()}
       | {cylinder, Centre :: rw_vec:vec(), Axis :: rw_vec:vec(), Radius :: float(), HalfLength :: float()}
       | {box, Centre :: rw_vec:vec(), HalfExtents :: rw_vec:vec(), solid | hollow}.
 -type aabb() :: {Min :: rw_vec:vec(), Max :: rw_vec:vec()}.
+%% A box as six numbers, flat for the narrowphase's hot comparisons.
+-type box6() :: {X0 :: float(), Y0 :: float(), Z0 :: float(), X1 :: float(), Y1 :: float(), Z1 :: float()}.
+
+%% A fixture with its bounding box. The box is padded far beyond rounding
+%% (1e-9 of its size and distance from the origin), so a sphere outside it
+%% by more than its radius is certainly not touching the shape.
+-spec fixture(non_neg_integer(), binary(), static_shape()) -> #fixture{}.
+fixture(Idx, Id, Shape) ->
+    Box = case fixture_aabb(Shape) of
+              unbounded -> unbounded;
+              {{X0, Y0, Z0}, {X1, Y1, Z1}} ->
+                  Pad = 1.0e-9 * (1.0 + lists:max([abs(X) || X <- [X0, Y0, Z0, X1, Y1, Z1]])),
+                  {X0 - Pad, Y0 - Pad, Z0 - Pad, X1 + Pad, Y1 + Pad, Z1 + Pad}
+          end,
+    #fixture{idx = Idx, id = Id, shape = Shape, box = Box}.
 
 -spec sphere(non_neg_integer(), binary(), float(), float()) -> #sphere{}.
 sphere(Idx, Id, Radius, Mass) ->

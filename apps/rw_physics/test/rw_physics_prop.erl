@@ -13,7 +13,8 @@
          prop_hash_covers_aabb/0, prop_hash_region_keeps_box/0, prop_normals_unit/0, prop_depth_along_normal/0,
          prop_cylinder_depth_along_normal/0, prop_swept_toi/0,
          prop_degenerate_input/0, prop_quat_integrate/0, prop_free_flight/0,
-         prop_respond_is_ordered_fold/0, prop_container_is_six_walls/0]).
+         prop_respond_is_ordered_fold/0, prop_container_is_six_walls/0,
+         prop_fixture_box_skips_only_misses/0]).
 %% generators, for use from a shell: proper_gen:pick(rw_physics_prop:pair_case())
 -export([position/0, far_vec/0, vec/0, direction/0, quat/0, sphere/1, model/0, state/1, pair_case/0,
          pair_case/1, fixture_probe/0]).
@@ -401,6 +402,29 @@ prop_container_is_six_walls() ->
                 Got = rw_narrow:sphere_fixture(P, R, {box, C, E, hollow}),
                 ?WHENFAIL(report("sphere ~p r ~p in box ~p ~p: ~p, walls as planes ~p", [P, R, C, E, Got, Expected]),
                           Got =:= Expected)
+            end)).
+
+%% The bounding-box test in front of a fixture changes no result: near the
+%% shape (the probes) and up to a few sizes away from it, static and swept.
+prop_fixture_box_skips_only_misses() ->
+    ?FORALL({{Shape, P0, R, D}, Away}, {fixture_probe(), oneof([{0.0, 0.0, 0.0}, speed_vec(3.0), speed_vec(30.0),
+                                                                {graze, choose(1, 3), oneof([lo, hi]), float(-0.01, 0.01)}])},
+            ?SAFE(begin
+                Fixture = rw_shape:fixture(0, <<"f">>, Shape),
+                P = case Away of
+                        %% just touching (or just missing) a face of the box
+                        {graze, Axis, Side, Eps} when is_tuple(Fixture#fixture.box) ->
+                            Face = element(Axis + case Side of lo -> 0; hi -> 3 end, Fixture#fixture.box),
+                            Sign = case Side of lo -> -1.0; hi -> 1.0 end,
+                            setelement(Axis, P0, Face + Sign * (R - Eps));
+                        {graze, _, _, _} -> P0;
+                        _ -> rw_vec:add(P0, Away)
+                    end,
+                Static = {rw_narrow:fixture(P, R, Fixture), rw_narrow:sphere_fixture(P, R, Shape)},
+                Swept = {rw_narrow:swept_fixture(P, D, R, Fixture), rw_narrow:swept_sphere_fixture(P, D, R, Shape)},
+                ?WHENFAIL(report("sphere ~p r ~p moving ~p, ~p (box ~p): static ~p, swept ~p",
+                                 [P, R, D, Shape, Fixture#fixture.box, Static, Swept]),
+                          element(1, Static) =:= element(2, Static) andalso element(1, Swept) =:= element(2, Swept))
             end)).
 
 prop_hash_region_keeps_box() ->
