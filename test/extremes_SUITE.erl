@@ -9,12 +9,13 @@
 -export([all/0, suite/0, init_per_suite/1, end_per_suite/1]).
 -export([substeps_1_to_250_ms/1, strides_512_and_1024/1, sphere_at_100_radii_per_substep/1,
          far_coordinates_1e9/1, mass_ratio_1e6/1, restitution_0/1, restitution_1_energy/1,
-         resting_sphere_60_s/1, stack_on_cylinder/1]).
+         resting_sphere_60_s/1, stack_on_cylinder/1, wall_and_sphere_at_once/1]).
 
 suite() -> [{timetrap, {minutes, 5}}].
 
 all() -> [substeps_1_to_250_ms, strides_512_and_1024, sphere_at_100_radii_per_substep, far_coordinates_1e9,
-          mass_ratio_1e6, restitution_0, restitution_1_energy, resting_sphere_60_s, stack_on_cylinder].
+          mass_ratio_1e6, restitution_0, restitution_1_energy, wall_and_sphere_at_once, resting_sphere_60_s,
+          stack_on_cylinder].
 
 init_per_suite(Config) ->
     {ok, _} = application:ensure_all_started(rigidwarp),
@@ -179,25 +180,55 @@ restitution_0(_Config) ->
 
 %% Restitution 1, no gravity: 50 spheres bouncing in a box for 10 s, a frame
 %% every substep. Every pairwise contact keeps kinetic energy to rounding
-%% (1e-12 per substep); it changes only at the rare substeps where one sphere
-%% meets two bodies at once, whose impulses are summed (Jacobi). This case
-%% counts those substeps and reports the total change (in the log and the
-%% README): the 1e-9 target over 10 s is not met while they exist.
+%% (1e-12 per substep), and so do contacts with the walls, which a pair sees
+%% already applied (wall_and_sphere_at_once/1). Energy changes only at the
+%% rare substeps where one sphere meets two others at once, whose impulses
+%% are summed (Jacobi): this case checks that every change is at such a
+%% substep and reports the total (in the log and the README): the 1e-9
+%% target over 10 s is not met while they exist.
 restitution_1_energy(_Config) ->
     {ok, Bin} = file:read_file(rw_test_lib:scenario("bouncing_50_250.json")),
     Map = jiffy:decode(Bin, [return_maps]),
     Scene = scene(Map#{<<"duration_ms">> => 10000, <<"frame_ms">> => 1}),
-    Masses = maps:from_list([{Id, M} || {sphere, _, Id, _, M, _, _} <- element(9, Scene)]),
+    Spheres = element(9, Scene),
+    Masses = maps:from_list([{Id, M} || {sphere, _, Id, _, M, _, _} <- Spheres]),
+    Radii = maps:from_list([{Id, R} || {sphere, _, Id, R, _, _, _} <- Spheres]),
     Ke = fun({frame, _, Bodies}) -> lists:sum([0.5 * maps:get(Id, Masses) * rw_vec:len2(V)
                                                || {Id, _, V, _, _} <- Bodies]) end,
-    Ks = [Ke(F) || F <- reference(Scene)],
+    Frames = list_to_tuple(reference(Scene)),
+    Ks = [Ke(F) || F <- tuple_to_list(Frames)],
     K0 = hd(Ks),
     Changes = [{I, (B - A) / K0} || {I, A, B} <- lists:zip3(lists:seq(1, length(Ks) - 1), lists:droplast(Ks), tl(Ks)),
                                     abs(B - A) / K0 > 1.0e-12],
     Final = (lists:last(Ks) - K0) / K0,
     ct:log("relative kinetic energy change after 10 s: ~.3g, at these substeps (ms, change): ~p", [Final, Changes]),
-    ?assert(length(Changes) =< 5),
-    ?assert(element(1, hd(Changes ++ [{10000, 0}])) >= 1000).
+    %% frame I holds the states at I ms, whose contacts made the change
+    Crowded = fun(I) ->
+                      {frame, I, Bodies} = element(I + 1, Frames),
+                      Touching = fun({A, PA, _, _, _}) ->
+                                         length([B || {B, PB, _, _, _} <- Bodies, B =/= A,
+                                                      rw_vec:len(rw_vec:sub(PA, PB)) < maps:get(A, Radii) + maps:get(B, Radii)])
+                                 end,
+                      lists:any(fun(Body) -> Touching(Body) >= 2 end, Bodies)
+              end,
+    ?assertEqual([], [I || {I, _} <- Changes, not Crowded(I)]),
+    ?assert(length(Changes) =< 2).
+
+%% A sphere touches a wall and is hit by another sphere in the same substep,
+%% restitution 1: it bounces off the wall, then the two swap velocities
+%% (equal masses), then it bounces off the wall again. Kinetic energy is
+%% kept exactly.
+wall_and_sphere_at_once(_Config) ->
+    Wall = #{<<"id">> => <<"wall">>, <<"shape">> => <<"plane">>, <<"static">> => true,
+             <<"normal">> => [1, 0, 0], <<"offset">> => 0},
+    Scene = scene(#{<<"duration_ms">> => 4, <<"frame_ms">> => 1, <<"model">> => #{<<"restitution">> => 1.0},
+                    <<"bodies">> => [Wall, sphere(<<"a">>, 0.5, 1, [0.5005, 0, 0], [-1, 0, 0]),
+                                     sphere(<<"b">>, 0.5, 1, [1.503, 0, 0], [-4, 0, 0])]}),
+    Frames = reference(Scene),
+    [{frame, 1, _} = Both, {frame, 2, _} = Again | _] = tl(Frames),
+    ?assertEqual({-4.0, 1.0}, {vx(<<"a">>, Both), vx(<<"b">>, Both)}),
+    ?assertEqual({4.0, 1.0}, {vx(<<"a">>, Again), vx(<<"b">>, Again)}),
+    ?assertEqual(Frames, timewarp(Scene, #{})).
 
 %% A sphere resting on a plane for 60 s: no sinking, no jitter above 1 % of
 %% its radius.

@@ -292,25 +292,18 @@ chain(T, St, Last, #d{model = M, dt = Dt, frame_ms = F, stride = S, end_ms = End
     chain(T + Dt, Next, Last, D, Passed1, [{T + Dt, Next} | States]).
 
 %% Effects of every known contact at T, in canonical order of partner.
-effects(T, #st{} = St, #d{model = M, sphere = S, contacts = Contacts, sim = Sim} = D) ->
+effects(T, #st{} = St, #d{model = M, sphere = S, contacts = Contacts, sim = Sim}) ->
     Bodies = case Contacts of
                  #{T := AtT} -> [{{PIdx, 0}, E} || {PIdx, E} <- maps:values(AtT)];
                  _ -> []
              end,
-    Fixed = [{{FIdx, Feature}, rw_response:fixture(M, S, St, C)}
-             || #fixture{idx = FIdx} = Fixture <- Sim#sim.scene#scene.fixtures,
-                {Feature, C} <- fixture_contacts(St, Fixture, D)],
+    Fixed = rw_dynamics:fixture_effects(M, S, St, Sim#sim.scene#scene.fixtures),
     case {Bodies, Fixed} of
         {[], []} -> [];
         {[{_, E}], []} -> [E];
         {[], [{_, E}]} -> [E];
         _ -> [E || {_, E} <- lists:keysort(1, Bodies ++ Fixed)]
     end.
-
-fixture_contacts(#st{p = P}, Fixture, #d{model = #model{ccd = false}, sphere = #sphere{radius = R}}) ->
-    rw_narrow:fixture(P, R, Fixture);
-fixture_contacts(#st{p = P} = St, Fixture, #d{model = #model{ccd = true} = M, sphere = #sphere{radius = R}}) ->
-    rw_narrow:swept_fixture(P, rw_integrate:free_displacement(M, St), R, Fixture).
 
 %% Write States ([{T, St}], consecutive substeps) to the TVHT under lock;
 %% stop at the first substep with contacts and send the events for them.
@@ -450,9 +443,11 @@ plan(Spans, #sim{buckets = Buckets}) ->
 
 send_events(_T, [], _Ids, D) -> D;
 send_events(T, Hits, Ids, #d{idx = Idx, sphere = S, model = M, contacts = Contacts} = D) ->
-    St = state_at(T, D),
+    %% the pair sees both spheres' velocities after their fixture contacts
+    St = seen_by_pairs(S, state_at(T, D), D),
     {Mine, Pend} = lists:foldl(
-                     fun({OIdx, {{_, OPid, OS, OSt, _}, Contact}}, {Acc, P}) ->
+                     fun({OIdx, {{_, OPid, OS, OSt0, _}, Contact}}, {Acc, P}) ->
+                             OSt = seen_by_pairs(OS, OSt0, D),
                              {Own, Theirs} = case Idx < OIdx of
                                                  true -> rw_response:pair(M, S, St, OS, OSt, Contact);
                                                  false -> swap(rw_response:pair(M, OS, OSt, S, St, Contact))
@@ -465,6 +460,9 @@ send_events(T, Hits, Ids, #d{idx = Idx, sphere = S, model = M, contacts = Contac
     Partners = maps:merge(D#d.partners, maps:from_list([{OIdx, OPid} || {OIdx, {{_, OPid, _, _, _}, _}} <- Hits])),
     Touched = lists:foldl(fun({OIdx, _}, Acc) -> touch(OIdx, T, Acc) end, D#d.touched, Hits),
     D#d{contacts = Contacts#{T => Mine}, pend_ev = Pend, partners = Partners, touched = Touched}.
+
+seen_by_pairs(S, St, #d{model = M, sim = #sim{scene = #scene{fixtures = Fixtures}}}) ->
+    rw_dynamics:after_fixtures(St, rw_dynamics:fixture_effects(M, S, St, Fixtures)).
 
 touch(PIdx, T, Touched) ->
     case Touched of

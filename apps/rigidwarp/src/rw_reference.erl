@@ -71,29 +71,25 @@ substep(#scene{model = #model{ccd = Ccd} = M, fixtures = Fixtures, cell_size = C
                false -> undefined
            end,
     Pairs = candidate_pairs(Bodies, States, Disp, Cell),
-    Effects0 = maps:from_list([{K, []} || K <- lists:seq(1, N)]),
-    {Effects1, NPairs} =
+    %% fixture contacts first: pairs see the velocities after them
+    Fixed = list_to_tuple([rw_dynamics:fixture_effects(M, element(K, Bodies), element(K, States), Fixtures)
+                           || K <- lists:seq(1, N)]),
+    Seen = list_to_tuple([rw_dynamics:after_fixtures(element(K, States), element(K, Fixed))
+                          || K <- lists:seq(1, N)]),
+    Effects0 = maps:from_list([{K, element(K, Fixed)} || K <- lists:seq(1, N)]),
+    NFixture = lists:sum([length(element(K, Fixed)) || K <- lists:seq(1, N)]),
+    {Effects, NPairs} =
         lists:foldl(
           fun({A, B}, {Acc, C}) ->
                   SA = element(A, Bodies), SB = element(B, Bodies),
-                  StA = element(A, States), StB = element(B, States),
-                  case pair_contact(SA, StA, SB, StB, A, B, Disp) of
+                  case pair_contact(SA, element(A, States), SB, element(B, States), A, B, Disp) of
                       none -> {Acc, C};
                       Contact ->
-                          {EA, EB} = rw_response:pair(M, SA, StA, SB, StB, Contact),
+                          {EA, EB} = rw_response:pair(M, SA, element(A, Seen), SB, element(B, Seen), Contact),
                           Acc1 = maps:update_with(A, fun(L) -> [{{SB#sphere.idx, 0}, EA} | L] end, Acc),
                           {maps:update_with(B, fun(L) -> [{{SA#sphere.idx, 0}, EB} | L] end, Acc1), C + 1}
                   end
           end, {Effects0, 0}, Pairs),
-    {Effects, NFixture} =
-        lists:foldl(
-          fun(K, {Acc, C}) ->
-                  S = element(K, Bodies), St = element(K, States),
-                  Hits = [{{FIdx, Feature}, rw_response:fixture(M, S, St, Contact)}
-                          || #fixture{idx = FIdx} = Fixture <- Fixtures,
-                             {Feature, Contact} <- fixture_contacts(S, St, K, Disp, Fixture)],
-                  {maps:update_with(K, fun(L) -> Hits ++ L end, Acc), C + length(Hits)}
-          end, {Effects1, 0}, lists:seq(1, N)),
     Results = [begin
                    St = element(K, States),
                    Sorted = [E || {_, E} <- lists:keysort(1, maps:get(K, Effects))],
@@ -107,11 +103,6 @@ pair_contact(#sphere{radius = RA}, #st{p = PA}, #sphere{radius = RB}, #st{p = PB
     rw_narrow:sphere_sphere(PA, RA, PB, RB);
 pair_contact(#sphere{radius = RA}, #st{p = PA}, #sphere{radius = RB}, #st{p = PB}, A, B, Disp) ->
     rw_narrow:swept_sphere_sphere(PA, element(A, Disp), RA, PB, element(B, Disp), RB).
-
-fixture_contacts(#sphere{radius = R}, #st{p = P}, _K, undefined, Fixture) ->
-    rw_narrow:fixture(P, R, Fixture);
-fixture_contacts(#sphere{radius = R}, #st{p = P}, K, Disp, Fixture) ->
-    rw_narrow:swept_fixture(P, element(K, Disp), R, Fixture).
 
 %% Pairs (lower position first) whose boxes share a cell of the grid.
 candidate_pairs(Bodies, States, Disp, Cell) ->

@@ -14,7 +14,7 @@
          prop_cylinder_depth_along_normal/0, prop_swept_toi/0,
          prop_degenerate_input/0, prop_quat_integrate/0, prop_free_flight/0,
          prop_respond_is_ordered_fold/0, prop_container_is_six_walls/0,
-         prop_fixture_box_skips_only_misses/0]).
+         prop_fixture_box_skips_only_misses/0, prop_fixture_then_pair_energy/0]).
 %% generators, for use from a shell: proper_gen:pick(rw_physics_prop:pair_case())
 -export([position/0, far_vec/0, vec/0, direction/0, quat/0, sphere/1, model/0, state/1, pair_case/0,
          pair_case/1, fixture_probe/0]).
@@ -249,6 +249,33 @@ prop_pair_energy() ->
                 ?WHENFAIL(report("KE ~p -> ~p (~.3e relative), model ~p",
                                  [Before, After, (After - Before) / max(Before, 1.0e-300), M]),
                           energy_ok(M, Before, After))
+            end)).
+
+%% A sphere touching a wall and another sphere in the same substep: the
+%% pair sees both velocities after their wall contacts (rw_dynamics), so the
+%% two stages together keep kinetic energy (elastic, frictionless) or lose
+%% some, as each contact alone does.
+prop_fixture_then_pair_energy() ->
+    ?FORALL({{M, SA, StA, SB, StB, C}, Dir, Depth},
+            {?LET(M0, model(), overlap_case(M0)), direction(), float(1.0e-6, 0.9)},
+            ?SAFE(begin
+                #sphere{radius = RA, idx = IA} = SA, #sphere{idx = IB} = SB,
+                Wall = rw_shape:fixture(9, <<"wall">>, {plane, Dir, rw_vec:dot(Dir, StA#st.p) - RA * (1.0 - Depth)}),
+                FA = rw_dynamics:fixture_effects(M, SA, StA, [Wall]),
+                FB = rw_dynamics:fixture_effects(M, SB, StB, [Wall]),
+                {EA, EB} = rw_response:pair(M, SA, rw_dynamics:after_fixtures(StA, FA),
+                                            SB, rw_dynamics:after_fixtures(StB, FB), C),
+                Final = fun(St, Keyed) ->
+                                {V, W, _} = rw_dynamics:respond(St, [E || {_, E} <- lists:keysort(1, Keyed)]),
+                                {V, W}
+                        end,
+                {VA, WA} = Final(StA, [{{IB, 0}, EA} | FA]),
+                {VB, WB} = Final(StB, [{{IA, 0}, EB} | FB]),
+                Before = ke(SA, StA#st.v, StA#st.w) + ke(SB, StB#st.v, StB#st.w),
+                After = ke(SA, VA, WA) + ke(SB, VB, WB),
+                ?WHENFAIL(report("wall contacts ~p ~p; KE ~p -> ~p (~.3e relative), model ~p",
+                                 [FA, FB, Before, After, (After - Before) / max(Before, 1.0e-300), M]),
+                          FA =/= [] andalso energy_ok(M, Before, After))
             end)).
 
 %% The same for a sphere against a static body.
