@@ -36,7 +36,7 @@
 }).
 
 %% A static body; never moves, so it is not a process. box bounds a
-%% bounded shape, padded against rounding (rw_shape:fixture_box/1), so that
+%% bounded shape, padded against rounding (rw_shape:fixture/3), so that
 %% the narrowphase skips a sphere far from it with six comparisons.
 -record(fixture, {
     idx :: non_neg_integer(),
