@@ -66,6 +66,10 @@
     %% bodies waiting for this one to reach an LVT: Pid => LVT
     watchers = #{} :: #{pid() => non_neg_integer()},
     watching = none :: none | {non_neg_integer(), non_neg_integer()},
+    %% true while the body waits in step with no step event armed (for a
+    %% partner to reach its LVT, or for GVT): a watch request cannot end
+    %% that wait, so it is answered without stepping again
+    idle = false :: boolean(),
     delay = 0 :: non_neg_integer()              % test hook: max pause (ms) before TVHT work
 }).
 -opaque data() :: #d{}.
@@ -154,13 +158,13 @@ step(timeout, step, D0) ->
                 {false, _} ->
                     case Limit of
                         {L, PIdx, PPid} when L =< Lvt ->
-                            {keep_state, watch(PIdx, PPid, commit_lvt(D))};
+                            {keep_state, (watch(PIdx, PPid, commit_lvt(D)))#d{idle = true}};
                         _ ->
                             To = case Limit of none -> Last; {L, _, _} -> min(Last, L) end,
                             settle(advance(Lvt, min(To, Lvt + D#d.window * Dt), D#d{watching = none}))
                     end
             end;
-        false -> {keep_state, wake_me(commit_lvt(D))}
+        false -> {keep_state, (wake_me(commit_lvt(D)))#d{idle = true}}
     end;
 step(Type, Msg, D) ->
     common(Type, Msg, D).
@@ -177,6 +181,7 @@ common(info, {event, _, _, _, _, _} = Msg, D) -> settle(on_message(Msg, D));
 common(info, {antievent, _, _, _} = Msg, D) -> settle(on_message(Msg, D));
 common(info, {ack, _, _} = Msg, D) -> settle(on_message(Msg, D));
 common(info, {gvt, _} = Msg, D) -> settle(?TIMED(D, ?ST_RED_GVT, on_message(Msg, D)));
+common(info, {watch, _, _} = Msg, #d{idle = true} = D) -> {keep_state, on_message(Msg, D)};
 common(info, {watch, _, _} = Msg, D) -> settle(on_message(Msg, D));
 common(info, {reached, _, _} = Msg, D) -> settle(on_message(Msg, D));
 common(timeout, step, D) ->
@@ -206,9 +211,9 @@ drain(D, Any) ->
     after 0 -> {Any, D}
     end.
 
-settle(#d{pend_anti = PA} = D) when map_size(PA) > 0 -> {next_state, rollback, D};
-settle(#d{pend_ev = PE} = D) when map_size(PE) > 0 -> {next_state, resolve, D};
-settle(D) -> {next_state, step, D, [{timeout, 0, step}]}.
+settle(#d{pend_anti = PA} = D) when map_size(PA) > 0 -> {next_state, rollback, D#d{idle = false}};
+settle(#d{pend_ev = PE} = D) when map_size(PE) > 0 -> {next_state, resolve, D#d{idle = false}};
+settle(D) -> {next_state, step, D#d{idle = false}, [{timeout, 0, step}]}.
 
 %%% Neighbour rule
 
