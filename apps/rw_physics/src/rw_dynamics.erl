@@ -41,13 +41,16 @@ step(M, St, Effects) ->
 %% The effects of a sphere's contacts with the fixtures at one substep, in
 %% canonical order (fixtures ascending by idx, features ascending).
 -spec fixture_effects(#model{}, #sphere{}, #st{}, [#fixture{}]) -> [keyed_effect()].
-fixture_effects(#model{ccd = false} = M, #sphere{radius = R} = S, #st{p = P} = St, Fixtures) ->
+fixture_effects(#model{ccd = Ccd} = M, #sphere{radius = R} = S, #st{p = P} = St, Fixtures) ->
+    Disp = case Ccd of
+               true -> rw_integrate:free_displacement(M, St);
+               false -> undefined
+           end,
     [{{FIdx, Feature}, rw_response:fixture(M, S, St, C)}
-     || #fixture{idx = FIdx} = Fixture <- Fixtures, {Feature, C} <- rw_narrow:fixture(P, R, Fixture)];
-fixture_effects(#model{ccd = true} = M, #sphere{radius = R} = S, #st{p = P} = St, Fixtures) ->
-    D = rw_integrate:free_displacement(M, St),
-    [{{FIdx, Feature}, rw_response:fixture(M, S, St, C)}
-     || #fixture{idx = FIdx} = Fixture <- Fixtures, {Feature, C} <- rw_narrow:swept_fixture(P, D, R, Fixture)].
+     || #fixture{idx = FIdx} = Fixture <- Fixtures, {Feature, C} <- fixture_contacts(P, Disp, R, Fixture)].
+
+fixture_contacts(P, undefined, R, Fixture) -> rw_narrow:fixture(P, R, Fixture);
+fixture_contacts(P, Disp, R, Fixture) -> rw_narrow:swept_fixture(P, Disp, R, Fixture).
 
 %% The state a sphere's pair contacts see: its velocities after the effects
 %% of its fixture contacts (from fixture_effects/4).
