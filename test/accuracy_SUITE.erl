@@ -33,18 +33,20 @@ pick(Rows, Match) ->
 %% so the error grows linearly with the substep; velocity Verlet is exact
 %% under constant gravity.
 projectile_converges(_Config) ->
-    Rows = sweep("projectile.json", #{until => 500, substeps => [1, 2, 4],
+    Rows = sweep("projectile.json", #{until => 500, substeps => [0.5, 1, 2, 4],
                                       integrators => [symplectic_euler, verlet, explicit_euler]}),
-    ?assertEqual(9, length(Rows)),
+    ?assertEqual(12, length(Rows)),
     Err = fun(I, S) -> maps:get(pos_err_max, pick(Rows, #{integrator => I, substep_ms => S})) end,
     [begin
+         ?assert(Err(I, 0.5) < Err(I, 1)),
          ?assert(Err(I, 1) < Err(I, 2)),
          ?assert(Err(I, 2) < Err(I, 4)),
          %% g t dt / 2 at t = 0.5 s
          ?assert(abs(Err(I, 1) - 9.81 * 0.5 * 0.001 / 2) < 1.0e-3 * Err(I, 1)),
-         ?assert(abs(Err(I, 4) / Err(I, 1) - 4.0) < 0.01)
+         ?assert(abs(Err(I, 4) / Err(I, 1) - 4.0) < 0.01),
+         ?assert(abs(Err(I, 1) / Err(I, 0.5) - 2.0) < 0.01)
      end || I <- [symplectic_euler, explicit_euler]],
-    [?assert(Err(verlet, S) < 1.0e-12) || S <- [1, 2, 4]],
+    [?assert(Err(verlet, S) < 1.0e-12) || S <- [0.5, 1, 2, 4]],
     [?assertMatch(#{missed := 0, impacts := 0, max_penetration := 0.0}, R) || R <- Rows],
     [?assert(M < 1.0e-12) || #{momentum_drift := M} <- Rows].
 

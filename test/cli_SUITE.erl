@@ -64,7 +64,16 @@ frames_file(Config) ->
     ?assertEqual([0, 20, 40, 60, 80, 100], [maps:get(<<"t">>, jiffy:decode(L, [return_maps])) || L <- Lines]),
     #{<<"bodies">> := [#{<<"id">> := <<"a">>, <<"p">> := [_, _, _], <<"v">> := [3.0, 0.0, 0.0]},
                        #{<<"id">> := <<"b">>}]} = jiffy:decode(hd(Lines), [return_maps]),
-    ?assertNot(filelib:is_file(Out ++ ".part")).
+    ?assertNot(filelib:is_file(Out ++ ".part")),
+    %% sub-millisecond substeps and frames: times in ms, fractional where
+    %% they must be, and the summary says which substep ran
+    Fine = filename:join(?config(priv_dir, Config), "fine.jsonl"),
+    {0, Summary, _} = rw_test_lib:run_escript(["run", Scene, "--until", "2", "--substep", "0.25",
+                                               "--frame-ms", "0.5", "--quiet", "--frames", Fine]),
+    ?assertMatch(#{<<"substep_ms">> := 0.25, <<"sim_ms">> := 2, <<"frames">> := 5}, last_json_line(Summary)),
+    {ok, FineBin} = file:read_file(Fine),
+    ?assertEqual([0, 0.5, 1, 1.5, 2], [maps:get(<<"t">>, jiffy:decode(L, [return_maps]))
+                                      || L <- binary:split(string:trim(FineBin), <<"\n">>, [global])]).
 
 %% --integrator and --ccd reach the physics: Verlet follows the projectile's
 %% parabola exactly where symplectic Euler does not, and both engines agree.
@@ -85,8 +94,8 @@ integrator_and_ccd_flags(Config) ->
 bad_flags_exit_2(_Config) ->
     Scene = rw_test_lib:scenario("head_on_elastic.json"),
     Cases = [{["run", Scene, "--bogus"], "unknown flag --bogus"},
-             {["run", Scene, "--until", "abc"], "--until must be a positive integer"},
-             {["run", Scene, "--stride", "-5"], "--stride must be a positive integer"},
+             {["run", Scene, "--until", "abc"], "--until must be a positive number of ms"},
+             {["run", Scene, "--stride", "-5"], "--stride must be a positive number of ms"},
              {["run", Scene, "--engine", "warp"], "--engine must be timewarp or reference"},
              {["run", Scene, "--integrator", "rk4"], "--integrator must be one of symplectic_euler, verlet, explicit_euler"},
              {["run", Scene, "--ccd", "yes"], "--ccd must be on or off, got yes"},
@@ -96,9 +105,9 @@ bad_flags_exit_2(_Config) ->
              {["run"], "run needs a scene file"},
              {["frobnicate"], "unknown command frobnicate"},
              {["run", Scene, "--substep", "3"], "not a multiple of the substep"},
-             {["run", Scene, "--until", "0"], "--until must be a positive integer"},
-             {["run", Scene, "--until", "1e3"], "--until must be a positive integer"},
-             {["run", Scene, "--until", "99999999999999999999999"], "--until must be a positive integer"},
+             {["run", Scene, "--until", "0"], "--until must be a positive number of ms"},
+             {["run", Scene, "--until", "1e3"], "--until must be a positive number of ms"},
+             {["run", Scene, "--until", "99999999999999999999999"], "--until must be a positive number of ms"},
              {["run", Scene, "--buckets", "-1"], "--buckets must be a positive integer"},
              {["run", Scene, "--schedulers", "two"], "--schedulers must be a positive integer"},
              {["run", Scene, Scene], "unexpected argument"},
@@ -115,13 +124,13 @@ bad_flags_exit_2(_Config) ->
              {["bench"], "bench needs a benchmark: accuracy"},
              {["bench", "speed"], "unknown benchmark speed"},
              {["bench", "accuracy", "--bogus"], "unknown flag --bogus"},
-             {["bench", "accuracy", "--substeps", "1,0"], "--substeps must be a positive integer"},
+             {["bench", "accuracy", "--substeps", "1,0"], "--substeps must be a positive number of ms"},
              {["bench", "accuracy", "--substeps", "1,,2"], "--substeps takes a comma-separated list"},
              {["bench", "accuracy", "--ccd", "maybe"], "--ccd takes off, on or off,on"},
              {["bench", "accuracy", "--integrators", "rk4"], "--integrators: unknown integrator rk4"},
              {["bench", "accuracy", "--out", "a.txt"], "--out must name a .csv file"},
              {["bench", "accuracy", "--plot"], "--plot needs a value"},
-             {["bench", "accuracy", "--scenes", "projectile:soon"], "--scenes projectile: must be a positive integer"},
+             {["bench", "accuracy", "--scenes", "projectile:soon"], "--scenes projectile: must be a positive number of ms"},
              {["bench", "accuracy", "--scenes", "no_such_scene"], "scenarios/no_such_scene.json: $: cannot read file"},
              {["bench", "accuracy", "--scenes", "cylinders_200"], "cylinders_200: the exact solver models spheres"}],
     [begin

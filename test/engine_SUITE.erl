@@ -136,13 +136,14 @@ stride() -> oneof([1, 2, 8, 64, 256]).
 buckets() -> oneof([1, 3, 16, 64]).
 
 %% Random small scenes: spheres with random velocities in a container,
-%% with or without gravity, rotation, friction, CCD, any integrator.
+%% with or without gravity, rotation, friction, CCD, any integrator, at
+%% substeps of 0.5 ms (ticks of 0.5 ms), 1 and 2 ms.
 scene_map() ->
     ?LET({N, Seed, R, Speed, Half, Restitution, Gravity, Rotation, Friction, Ccd, Integrator, Substep, Dur},
          {range(2, 14), range(1, 1000000), oneof([0.1, 0.2, 0.3]), oneof([0.5, 3.0, 10.0]),
           oneof([1.0, 1.5, 2.5]), oneof([0.0, 0.5, 1.0]), boolean(), boolean(),
           oneof([none, 0.2, 0.8]), boolean(), oneof([<<"symplectic_euler">>, <<"verlet">>, <<"explicit_euler">>]),
-          oneof([1, 2]), oneof([100, 300])},
+          oneof([0.5, 1, 2]), oneof([100, 300])},
          begin
              Model0 = #{<<"restitution">> => Restitution, <<"rotation">> => Rotation, <<"ccd">> => Ccd,
                         <<"integrator">> => Integrator},
@@ -240,4 +241,15 @@ frames_api(_Config) ->
     ?assertEqual(2, length(Bodies)),
     ?assertEqual(First, rigidwarp:frames(Sim, 0)),
     ok = rigidwarp:stop(Sim),
+    %% sub-millisecond frames are read by their time in ms, 20 and 20.0 alike
+    {ok, Fine} = rigidwarp:start(File, #{substep => 0.25, frame_ms => 0.5, until => 20}),
+    ok = rigidwarp:await(Fine, 10000),
+    ?assertEqual(20, rigidwarp:gvt(Fine)),
+    ?assertMatch({frame, 20, _}, rigidwarp:frames(Fine, latest)),
+    ?assertMatch({frame, 0.5, _}, rigidwarp:frames(Fine, 0.5)),
+    ?assertMatch({frame, 20, _}, rigidwarp:frames(Fine, 20.0)),
+    ?assertEqual(none, rigidwarp:frames(Fine, 0.25)),
+    ?assertMatch([{frame, 19, _}, {frame, 19.5, _}, {frame, 20, _}], rigidwarp:frames_after(Fine, 18.5, 5)),
+    ?assertMatch(#{gvt := 20, end_ms := 20, max_lvt := 20}, rigidwarp:stats(Fine)),
+    ok = rigidwarp:stop(Fine),
     ok.

@@ -3,26 +3,33 @@
 %% A validated scene, ready to run. Bodies are ranked by id: a sphere's or
 %% fixture's idx is its position in the sorted list of all ids, and contacts
 %% are always summed in that order.
+%%
+%% Times inside the engines are integer ticks. A tick is 1 ms, as in the
+%% paper, unless the scene's times need a finer one (a 0.5 ms substep): then
+%% it is the largest whole number of microseconds that divides 1 ms and
+%% every time of the scene (rw_scene:ms/2 and ticks/2 convert). Users see
+%% milliseconds only.
 -record(scene, {
     name :: binary(),
     file :: string() | undefined,
-    duration_ms :: pos_integer(),
-    substep_ms :: pos_integer(),
-    stride_ms :: pos_integer(),
-    frame_ms :: pos_integer(),
+    duration :: pos_integer(),            % ticks
+    substep :: pos_integer(),             % ticks
+    stride :: pos_integer(),              % ticks
+    frame :: pos_integer(),               % ticks
     model :: #model{},
     spheres :: [#sphere{}],          % ascending idx
     initial :: [#st{}],              % parallel to spheres
     fixtures :: [#fixture{}],        % ascending idx
     cell_size :: float(),
-    buckets :: pos_integer() | undefined
+    buckets :: pos_integer() | undefined,
+    tick_us = 1000 :: pos_integer()       % microseconds per tick, divides 1000
 }).
 
 %% What every process of one Time Warp simulation shares: set once at start.
 -record(sim, {
     scene :: #scene{},
     n :: pos_integer(),                       % dynamic bodies
-    end_ms :: non_neg_integer(),
+    end_t :: non_neg_integer(),                % ticks
     buckets :: tuple(),                       % bucket pids, index 0 at element 1
     gvt :: pid() | undefined,
     records :: ets:tid(),                     % {{T, Idx}, BodyFrame}: committed states

@@ -11,8 +11,9 @@
 -type run_options() :: #{engine => timewarp | reference,
                          buckets => pos_integer(), schedulers => pos_integer(),
                          watchdog_ms => pos_integer(),
-                         until => pos_integer(), substep => pos_integer(),
-                         stride => pos_integer(), frame_ms => pos_integer(),
+                         %% times in ms; whole microseconds (a 0.5 ms substep) are fine
+                         until => number(), substep => number(),
+                         stride => number(), frame_ms => number(),
                          integrator => rw_integrate:integrator(), ccd => boolean(),
                          frames => file:filename(),
                          on_frame => fun((rw_reference:frame()) -> any()),
@@ -76,24 +77,24 @@ stop(Other) -> not_a_sim(Other).
 -spec frames(sim()) -> rw_reference:frame() | none | {error, string()}.
 frames(Sim) -> frames(Sim, latest).
 
--spec frames(sim(), latest | non_neg_integer()) -> rw_reference:frame() | none | {error, string()}.
+-spec frames(sim(), latest | number()) -> rw_reference:frame() | none | {error, string()}.
 frames(Sim, T) when ?IS_SIM(Sim) ->
     Ring = maps:get(ring, Sim),
     alive(fun() ->
                   case T of
                       latest -> rw_gvt:latest(Ring);
-                      _ when is_integer(T), T >= 0 -> rw_gvt:frame_at(Ring, T);
+                      _ when is_number(T), T >= 0 -> rw_gvt:frame_at(Ring, T);
                       _ -> {error, lists:flatten(io_lib:format("frame time must be latest or ms >= 0, got ~0p", [T]))}
                   end
           end);
 frames(Other, _) -> not_a_sim(Other).
 
 %% Up to Max committed frames after T ms that are still in the ring.
--spec frames_after(sim(), integer(), pos_integer()) -> [rw_reference:frame()] | {error, string()}.
-frames_after(Sim, T, Max) when ?IS_SIM(Sim), is_integer(T), is_integer(Max), Max > 0 ->
+-spec frames_after(sim(), number(), pos_integer()) -> [rw_reference:frame()] | {error, string()}.
+frames_after(Sim, T, Max) when ?IS_SIM(Sim), is_number(T), is_integer(Max), Max > 0 ->
     alive(fun() -> rw_gvt:frames_after(maps:get(ring, Sim), T, Max) end);
 frames_after(Sim, T, Max) when ?IS_SIM(Sim) ->
-    {error, lists:flatten(io_lib:format("frames_after needs an integer time and a positive count, got ~0p, ~0p",
+    {error, lists:flatten(io_lib:format("frames_after needs a time in ms and a positive count, got ~0p, ~0p",
                                         [T, Max]))};
 frames_after(Other, _, _) -> not_a_sim(Other).
 
@@ -118,7 +119,7 @@ view(Sim, Opts) when ?IS_SIM(Sim) ->
     {error, lists:flatten(io_lib:format("options must be a map such as #{port => 8765}, got ~0p", [Opts]))};
 view(Other, _) -> not_a_sim(Other).
 
--spec gvt(sim()) -> integer() | {error, string()}.
+-spec gvt(sim()) -> number() | {error, string()}.
 gvt(Sim) when ?IS_SIM(Sim) -> alive(fun() -> rw_gvt:gvt(maps:get(gvt, Sim)) end);
 gvt(Other) -> not_a_sim(Other).
 
@@ -202,7 +203,8 @@ run_scene(Scene, Opts) ->
             Error
     end.
 
-run_engine(reference, #scene{duration_ms = End} = Scene, Sink, Opts) ->
+run_engine(reference, #scene{duration = Duration} = Scene, Sink, Opts) ->
+    End = rw_scene:ms(Scene, Duration),
     OnFrame = case maps:find(on_progress, Opts) of
                   {ok, P} ->
                       T0 = erlang:monotonic_time(millisecond),
@@ -224,7 +226,7 @@ with_schedulers(N, Fun) ->
     try Fun() after erlang:system_flag(schedulers_online, Old) end.
 
 describe_failure({stalled, Gvt, Report}) ->
-    lists:flatten(io_lib:format("GVT did not advance past ~b ms:~n~ts", [Gvt, Report]));
+    lists:flatten(io_lib:format("GVT did not advance past ~p ms:~n~ts", [Gvt, Report]));
 describe_failure({crashed, Reason}) ->
     lists:flatten(io_lib:format("the simulation crashed: ~p", [Reason]));
 describe_failure(Other) ->
@@ -246,11 +248,12 @@ open_sink(Opts) ->
     end.
 
 %% The engine's own counters, plus what every run reports.
-summary(#scene{name = Name, substep_ms = Dt, stride_ms = Stride, spheres = Spheres, duration_ms = SimMs},
+summary(#scene{name = Name, substep = Dt, stride = Stride, spheres = Spheres, duration = Duration} = Scene,
         Engine, Stats, WallUs) ->
     WallMs = WallUs / 1000.0,
-    Stats#{scene => Name, engine => Engine, bodies => length(Spheres), substep_ms => Dt,
-           stride_ms => Stride, sim_ms => SimMs, wall_ms => round(WallMs),
+    SimMs = rw_scene:ms(Scene, Duration),
+    Stats#{scene => Name, engine => Engine, bodies => length(Spheres), substep_ms => rw_scene:ms(Scene, Dt),
+           stride_ms => rw_scene:ms(Scene, Stride), sim_ms => SimMs, wall_ms => round(WallMs),
            realtime_factor => SimMs / max(WallMs, 0.001)}.
 
 check_file(File) when is_list(File); is_binary(File) ->
@@ -275,7 +278,7 @@ check_values([{engine, E} | Rest]) when E =:= reference; E =:= timewarp -> check
 check_values([{K, V} | Rest]) when (K =:= buckets orelse K =:= schedulers orelse K =:= watchdog_ms),
                                    is_integer(V), V > 0, V =< 1 bsl 20 -> check_values(Rest);
 check_values([{K, V} | Rest]) when (K =:= until orelse K =:= substep orelse K =:= stride orelse
-                                    K =:= frame_ms), is_integer(V), V > 0 -> check_values(Rest);
+                                    K =:= frame_ms), is_number(V), V > 0 -> check_values(Rest);
 check_values([{integrator, I} | Rest]) ->
     case lists:member(I, rw_integrate:integrators()) of
         true -> check_values(Rest);

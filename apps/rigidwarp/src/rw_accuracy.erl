@@ -34,12 +34,12 @@
 %% same for every stride.
 -module(rw_accuracy).
 -include("rigidwarp.hrl").
--export([sweep/1, check_scene/1, measure/3, metrics/3, pareto/1, csv/1, table/1, columns/0, num/1,
+-export([sweep/1, check_scene/1, measure/3, metrics/3, pareto/1, csv/1, csv_value/1, table/1, columns/0, num/1,
          default_scenes/0, default_substeps/0, default_strides/0]).
 -export_type([row/0, options/0, scene_spec/0]).
 
--type row() :: #{scene := binary(), substep_ms := pos_integer(), stride_ms := pos_integer(),
-                 integrator := rw_integrate:integrator(), ccd := boolean(), sim_ms := pos_integer(),
+-type row() :: #{scene := binary(), substep_ms := number(), stride_ms := number(),
+                 integrator := rw_integrate:integrator(), ccd := boolean(), sim_ms := number(),
                  wall_ms := float(), realtime_factor := float(), pos_err_max := float(),
                  pos_err_rms := float(), energy_drift := float() | undefined,
                  momentum_drift := float() | undefined, max_penetration := float(), missed := non_neg_integer(),
@@ -47,7 +47,8 @@
 %% A scene file, or a scene file with its own end time (ms), which wins
 %% over the `until` option.
 -type scene_spec() :: file:filename() | {file:filename(), pos_integer()}.
--type options() :: #{scenes := [scene_spec()], substeps := [pos_integer()], strides := [pos_integer()],
+%% Substeps and strides in ms: whole microseconds (0.5 is a substep).
+-type options() :: #{scenes := [scene_spec()], substeps := [number()], strides := [number()],
                      integrators := [rw_integrate:integrator()], ccd := [boolean()],
                      until => pos_integer(), min_runs => pos_integer(), min_wall_ms => non_neg_integer(),
                      on_row => fun((map()) -> any())}.
@@ -63,8 +64,8 @@
 default_scenes() ->
     ["projectile", "ball_drop", "head_on_elastic", "newtons_cradle", "fast_thin_wall", "bouncing_50_250:1000"].
 
--spec default_substeps() -> [pos_integer()].
-default_substeps() -> [1, 2, 4, 8, 16].
+-spec default_substeps() -> [number()].
+default_substeps() -> [0.5, 1, 2, 4, 8, 16].
 
 %% Strides in ms, rounded up to a multiple of each substep.
 -spec default_strides() -> [pos_integer()].
@@ -117,8 +118,14 @@ check_scene(File) ->
     end.
 
 sweep_scene(File, #{substeps := Substeps, strides := Strides, integrators := Integrators, ccd := Ccds} = Opts) ->
-    {ok, #scene{duration_ms = Duration, frame_ms = Frame0, model = #model{gravity = G}}} = rigidwarp:load(File, #{}),
-    Until = maps:get(until, Opts, Duration),
+    {ok, #scene{duration = Duration, frame = Frame, tick_us = Tick, model = #model{gravity = G}}} =
+        rigidwarp:load(File, #{}),
+    %% times in whole microseconds here, so that 0.5 ms substeps round up exactly
+    UntilUs = case maps:find(until, Opts) of
+                  {ok, U} -> us(U);
+                  error -> Duration * Tick
+              end,
+    Frame0 = Frame * Tick,
     %% without gravity every integrator moves a body by v dt: the same frames
     Ints = case G of
                undefined -> lists:sublist(Integrators, 1);
@@ -126,22 +133,29 @@ sweep_scene(File, #{substeps := Substeps, strides := Strides, integrators := Int
            end,
     lists:append(
       [begin
-           End = round_up(Until, S),
-           Exact = exact(File, S, End),
+           SUs = us(S),
+           End = ms(round_up(UntilUs, SUs)),
+           Exact = exact(File, SUs, End),
            lists:append(
              [begin
                   Setting = #{substep => S, integrator => I, ccd => C, until => End},
                   Acc = measure(File, Setting, Exact),
                   Rows = [begin
-                              Speed = speed(File, Setting#{stride => St, frame_ms => round_up(Frame0, S)}, Opts),
+                              Speed = speed(File, Setting#{stride => St, frame_ms => ms(round_up(Frame0, SUs))}, Opts),
                               maps:merge(Acc, Speed#{substep_ms => S, stride_ms => St, integrator => I, ccd => C})
-                          end || St <- lists:usort([round_up(St0, S) || St0 <- Strides])],
+                          end || St <- lists:usort([ms(round_up(us(St0), SUs)) || St0 <- Strides])],
                   _ = [(maps:get(on_row, Opts, fun(_) -> ok end))(R) || R <- Rows],
                   Rows
               end || I <- Ints, C <- Ccds])
        end || S <- Substeps]).
 
 round_up(X, S) -> S * ((X + S - 1) div S).
+
+us(Ms) -> round(Ms * 1000).
+
+%% Whole ms as integers, as frame times are (rw_scene:ms/2).
+ms(Us) when Us rem 1000 =:= 0 -> Us div 1000;
+ms(Us) -> Us / 1000.
 
 %% Time Warp with default schedulers: the fastest of at least MinRuns runs
 %% that take at least MinWall ms together (the machine may be busy with
@@ -170,15 +184,15 @@ load(File, Opts) ->
 
 %%% Accuracy of one setting
 
-%% The exact solution at every multiple of the substep up to End ms.
-exact(File, S, End) ->
+%% The exact solution at every multiple of the substep (SUs, in us) up to End ms.
+exact(File, SUs, End) ->
     {ok, #scene{name = Name, model = #model{gravity = G, restitution = E}, spheres = Spheres, initial = Initial,
                 fixtures = Fixtures}} = load(File, #{}),
     World = #{gravity => G, restitution => E,
               planes => lists:append([rw_exact:walls(Shape) || #fixture{shape = Shape} <- Fixtures])},
     Bodies = [#{id => Id, r => R, m => M, p => P, v => V}
               || {#sphere{id = Id, radius = R, mass = M}, #st{p = P, v = V}} <- lists:zip(Spheres, Initial)],
-    try rw_exact:run(World, Bodies, lists:seq(0, End, S))
+    try rw_exact:run(World, Bodies, [ms(T) || T <- lists:seq(0, us(End), SUs)])
     catch error:Reason -> throw({accuracy_error, lists:flatten(io_lib:format("~ts: the exact solver stopped: ~0p",
                                                                             [Name, Reason]))})
     end.
@@ -186,8 +200,8 @@ exact(File, S, End) ->
 %% Runs one setting (substep, integrator, ccd, until) on the reference
 %% engine with a frame at every substep and compares it with Exact
 %% (rw_exact:run/3 at the same times).
--spec measure(file:filename(), #{substep := pos_integer(), integrator := rw_integrate:integrator(),
-                                 ccd := boolean(), until := pos_integer()},
+-spec measure(file:filename(), #{substep := number(), integrator := rw_integrate:integrator(),
+                                 ccd := boolean(), until := number()},
               {[rw_exact:frame()], list()}) -> accuracy().
 measure(File, #{substep := S, integrator := I, ccd := C, until := End}, Exact) ->
     {ok, Scene} = load(File, #{substep => S, stride => S, frame_ms => S, until => End, integrator => I, ccd => C}),
@@ -341,6 +355,8 @@ csv(Rows) ->
     [lists:join(",", [atom_to_list(C) || C <- columns()]), "\n",
      [[lists:join(",", [csv_value(maps:get(C, R, false)) || C <- columns()]), "\n"] || R <- Rows]].
 
+%% One value as CSV (and the table) writes it: 0.5, 16, on as 1.
+-spec csv_value(term()) -> iodata().
 csv_value(undefined) -> "";
 csv_value(B) when is_binary(B) -> B;
 csv_value(true) -> "1";
@@ -355,7 +371,7 @@ csv_value(F) when is_float(F) -> float_to_list(F, [short]).
 table(Rows) ->
     Header = ["scene", "substep", "stride", "integrator", "ccd", "realtime", "pos err max", "pos err rms",
               "energy", "momentum", "penetration", "missed", "impacts", "front"],
-    Cells = [[binary_to_list(S), integer_to_list(Dt), integer_to_list(St), atom_to_list(I), on_off(C),
+    Cells = [[binary_to_list(S), csv_value(Dt), csv_value(St), atom_to_list(I), on_off(C),
               num(Rt), num(EMax), num(ERms), num(En), num(Mo), num(Pen), integer_to_list(Mi), integer_to_list(Im),
               case maps:get(pareto, R, false) of true -> "*"; false -> "" end]
              || #{scene := S, substep_ms := Dt, stride_ms := St, integrator := I, ccd := C, realtime_factor := Rt,

@@ -38,8 +38,8 @@
     idx :: non_neg_integer(),
     model :: #model{},
     dt :: pos_integer(),
-    frame_ms :: pos_integer(),
-    end_ms :: non_neg_integer(),
+    frame :: pos_integer(),                     % times in ticks (rw_scene)
+    end_t :: non_neg_integer(),
     stride :: pos_integer(),
     lvt = 0 :: non_neg_integer(),
     gvt = -1 :: integer(),                      % -1 until the first frame
@@ -115,10 +115,10 @@ other(_Idx, {_, A, _, _}) -> A.
 callback_mode() -> state_functions.
 
 -spec init({#sim{}, #sphere{}, #st{}}) -> gen_statem:init_result(ready).
-init({#sim{scene = #scene{model = M, substep_ms = Dt, frame_ms = F, stride_ms = Stride}, end_ms = End} = Sim,
+init({#sim{scene = #scene{model = M, substep = Dt, frame = F, stride = Stride}, end_t = End} = Sim,
       #sphere{idx = Idx} = Sphere, St0}) ->
-    {ok, ready, #d{sim = Sim, sphere = Sphere, idx = Idx, model = M, dt = Dt, frame_ms = F,
-                   end_ms = End, stride = Stride, start = St0}}.
+    {ok, ready, #d{sim = Sim, sphere = Sphere, idx = Idx, model = M, dt = Dt, frame = F,
+                   end_t = End, stride = Stride, start = St0}}.
 
 %%% Phases
 
@@ -135,7 +135,7 @@ ready(_Type, _Msg, _D) ->
     {keep_state_and_data, [postpone]}.
 
 step(timeout, step, D0) ->
-    #d{lvt = Lvt, gvt = Gvt, stride = Stride, end_ms = End, dt = Dt} = D = read_gvt(D0),
+    #d{lvt = Lvt, gvt = Gvt, stride = Stride, end_t = End, dt = Dt} = D = read_gvt(D0),
     Last = min(max(Gvt, 0) + Stride, End),
     %% A body that has passed the next sync point is not holding GVT back:
     %% it waits until it can take at least min_step/1, since one long
@@ -287,7 +287,7 @@ timed(Stats, Stage, Fun) ->
 %% point passed on the way (to commit).
 chain(T, _St, Last, _D, Passed, States) when T >= Last ->
     {lists:reverse(Passed), lists:reverse(States)};
-chain(T, St, Last, #d{model = M, dt = Dt, frame_ms = F, stride = S, end_ms = End} = D, Passed, States) ->
+chain(T, St, Last, #d{model = M, dt = Dt, frame = F, stride = S, end_t = End} = D, Passed, States) ->
     Post = {V, W, U} = rw_dynamics:respond(St, effects(T, St, D)),
     Next = rw_integrate:advance(M, St, V, W, U),
     Passed1 = case T rem F =:= 0 orelse T rem S =:= 0 orelse T =:= End of
@@ -571,8 +571,8 @@ read_gvt(#d{sim = #sim{gvt_now = Ref}} = D) -> on_gvt(atomics:get(Ref, 1), D).
 %% the earliest GVT at which it might (step/3): when LVT_ub is min_step/1
 %% past its LVT, reaches the end, or when no sync point lies between GVT and
 %% its LVT any more. Early is harmless (it asks again), late would stall.
-wake_me(#d{lvt = Lvt, end_ms = End} = D) when Lvt >= End -> D;
-wake_me(#d{lvt = Lvt, gvt = G, stride = S, frame_ms = F, end_ms = End, wake_at = Asked} = D) ->
+wake_me(#d{lvt = Lvt, end_t = End} = D) when Lvt >= End -> D;
+wake_me(#d{lvt = Lvt, gvt = G, stride = S, frame = F, end_t = End, wake_at = Asked} = D) ->
     MinStep = min_step(D),
     At = max(G + 1, lists:min([Lvt + MinStep - S, End - S, max(Lvt div F * F, Lvt div S * S)])),
     case Asked of
@@ -589,11 +589,11 @@ min_step(#d{stride = S, dt = Dt}) -> max(Dt, (S * 3 div 4) div Dt * Dt).
 
 %% The first sync point after GVT: GVT cannot advance before every body
 %% has reached it.
-next_sync(#d{gvt = G, frame_ms = F, stride = S, end_ms = End}) -> rw_gvt:sync_after(G, F, S, End).
+next_sync(#d{gvt = G, frame = F, stride = S, end_t = End}) -> rw_gvt:sync_after(G, F, S, End).
 
 %% Bodies commit at every frame time and every multiple of the stride, so
 %% that GVT can always advance far enough for LVT_ub to reach the next one.
-is_sync(T, #d{frame_ms = F, stride = S, end_ms = End}) -> T rem F =:= 0 orelse T rem S =:= 0 orelse T =:= End.
+is_sync(T, #d{frame = F, stride = S, end_t = End}) -> T rem F =:= 0 orelse T rem S =:= 0 orelse T =:= End.
 
 commit(T, #st{p = P, q = Q}, {V, W, _U}, #d{sim = Sim, idx = Idx, sphere = #sphere{id = Id}} = D) ->
     case T > D#d.gvt andalso is_sync(T, D) andalso not lists:member(T, D#d.committed) of

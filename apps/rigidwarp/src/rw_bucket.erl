@@ -37,7 +37,7 @@
 
 -record(state, {
     model :: #model{},
-    dt :: pos_integer(),                     % substep, ms
+    dt :: pos_integer(),                     % substep, ticks
     locks = #{} :: #{rw_hash:cell() => pid()},
     held = #{} :: #{pid() => [rw_hash:cell()]},   % the same locks by owner
     waiting = [] :: [{gen_server:from(), pid(), [rw_hash:cell()], term()}],

@@ -48,10 +48,12 @@ wake_at(Gvt, Pid, At) ->
     Gvt ! {wake_at, Pid, At},
     ok.
 
--spec gvt(pid()) -> integer().
+%% GVT in ms (-1 before the first frame).
+-spec gvt(pid()) -> number().
 gvt(Gvt) -> gen_server:call(Gvt, gvt).
 
-%% Frames are read from the ring directly, without the GVT process.
+%% Frames are read from the ring directly, without the GVT process. The
+%% ring holds them by time in ms, an integer when whole (rw_scene:whole_ms/1).
 -spec latest(ets:tid()) -> rw_reference:frame() | none.
 latest(Ring) ->
     case ets:lookup(Ring, latest) of
@@ -59,15 +61,15 @@ latest(Ring) ->
         [] -> none
     end.
 
--spec frame_at(ets:tid(), non_neg_integer()) -> rw_reference:frame() | none.
+-spec frame_at(ets:tid(), number()) -> rw_reference:frame() | none.
 frame_at(Ring, T) ->
-    case ets:lookup(Ring, {t, T}) of
+    case ets:lookup(Ring, {t, rw_scene:whole_ms(T)}) of
         [{_, Frame}] -> Frame;
         [] -> none
     end.
 
 %% Up to Max frames of the ring after T, oldest first.
--spec frames_after(ets:tid(), integer(), pos_integer()) -> [rw_reference:frame()].
+-spec frames_after(ets:tid(), number(), pos_integer()) -> [rw_reference:frame()].
 frames_after(Ring, T, Max) ->
     Ts = lists:sort(ets:select(Ring, [{{{t, '$1'}, '_'}, [{'>', '$1', T}], ['$1']}])),
     [F || Ti <- lists:sublist(Ts, Max), F <- [frame_at(Ring, Ti)], F =/= none].
@@ -84,8 +86,8 @@ handle_call({go, Sim, Bodies, Opts}, _From, S) ->
                     last_advance = now_ms()}};
 handle_call({subscribe, Pid}, _From, #s{subscribers = Subs} = S) ->
     {reply, ok, S#s{subscribers = [Pid | Subs]}};
-handle_call(gvt, _From, S) ->
-    {reply, S#s.gvt, S}.
+handle_call(gvt, _From, #s{gvt = G} = S) ->
+    {reply, ms(G, S), S}.
 
 -spec handle_cast(term(), #s{}) -> {noreply, #s{}}.
 handle_cast(_Msg, S) -> {noreply, S}.
@@ -104,14 +106,14 @@ handle_info({wake_at, Pid, At}, #s{gvt = G} = S) when At =< G ->
     {noreply, S};
 handle_info({wake_at, Pid, At}, #s{waiting = W} = S) ->
     {noreply, S#s{waiting = gb_sets:add({At, Pid}, W)}};
-handle_info(watchdog, #s{gvt = End, sim = #sim{end_ms = End}} = S) ->
+handle_info(watchdog, #s{gvt = End, sim = #sim{end_t = End}} = S) ->
     {noreply, S};
 handle_info(watchdog, #s{last_advance = Last, watchdog_ms = W} = S) ->
     case now_ms() - Last > W of
         true ->
             Report = diagnose(S),
-            logger:error("rigidwarp: GVT stuck at ~b ms for ~b ms~n~ts", [S#s.gvt, W, Report]),
-            ok = notify(S#s.owner, {rw_stalled, self(), S#s.gvt, Report}),
+            logger:error("rigidwarp: GVT stuck at ~p ms for ~b ms~n~ts", [ms(S#s.gvt, S), W, Report]),
+            ok = notify(S#s.owner, {rw_stalled, self(), ms(S#s.gvt, S), Report}),
             {noreply, S#s{last_advance = now_ms()}};
         false ->
             erlang:send_after(W div 4 + 1, self(), watchdog),
@@ -123,7 +125,7 @@ handle_info(Msg, S) ->
 
 %% GVT advances through the sync points: frame times, multiples of the
 %% stride, and the end time. Frames are written at frame times only.
-next_sync(#s{gvt = G, sim = #sim{scene = #scene{frame_ms = F, stride_ms = S}, end_ms = End}}) ->
+next_sync(#s{gvt = G, sim = #sim{scene = #scene{frame = F, stride = S}, end_t = End}}) ->
     sync_after(G, F, S, End).
 
 %% The first sync point after G (G < 0: before the first frame). Bodies use
@@ -132,7 +134,10 @@ next_sync(#s{gvt = G, sim = #sim{scene = #scene{frame_ms = F, stride_ms = S}, en
 sync_after(G, _F, _S, _End) when G < 0 -> 0;
 sync_after(G, F, S, End) -> min(min((G div F + 1) * F, (G div S + 1) * S), End).
 
-is_frame(T, #sim{scene = #scene{frame_ms = F}, end_ms = End}) -> T rem F =:= 0 orelse T =:= End.
+is_frame(T, #sim{scene = #scene{frame = F}, end_t = End}) -> T rem F =:= 0 orelse T =:= End.
+
+ms(T, #s{sim = #sim{scene = Scene}}) -> rw_scene:ms(Scene, T);
+ms(T, #s{sim = undefined}) -> T.
 
 %% A body that commits several sync points in one step sends their
 %% completions back to back: take them all, so that GVT advances over them
@@ -144,14 +149,14 @@ more_complete(C) ->
     end.
 
 advance(#s{gvt = G0} = S) ->
-    #s{gvt = G, sim = #sim{end_ms = End} = Sim} = S1 = advance_over(S),
+    #s{gvt = G, sim = #sim{end_t = End} = Sim} = S1 = advance_over(S),
     case G > G0 of
         true ->
             ok = atomics:put(Sim#sim.gvt_now, 1, G),
             [rw_bucket:gvt(B, G) || B <- tuple_to_list(Sim#sim.buckets)],
             S2 = S1#s{waiting = wake(G, S1#s.waiting)},
             ok = case G of
-                     End -> notify(S#s.owner, {rw_done, self(), End});
+                     End -> notify(S#s.owner, {rw_done, self(), ms(End, S)});
                      _ -> ok
                  end,
             S2;
@@ -159,14 +164,16 @@ advance(#s{gvt = G0} = S) ->
             S1
     end.
 
-advance_over(#s{complete = C, sim = #sim{end_ms = End} = Sim} = S) ->
+advance_over(#s{complete = C, sim = #sim{end_t = End} = Sim} = S) ->
     Next = next_sync(S),
     case maps:take(Next, C) of
         {true, C1} ->
             S0 = case is_frame(Next, Sim) of
                      true ->
-                         Frame = {frame, Next, ets:select(Sim#sim.records, [{{{Next, '_'}, '$1'}, [], ['$1']}])},
-                         write_ring(Next, Frame, S),
+                         %% frames leave the engine with their time in ms
+                         Ms = ms(Next, S),
+                         Frame = {frame, Ms, ets:select(Sim#sim.records, [{{{Next, '_'}, '$1'}, [], ['$1']}])},
+                         write_ring(Ms, Frame, S),
                          _ = [P ! {rw_frame, self(), Frame} || P <- S#s.subscribers],
                          S#s{frames = S#s.frames + 1};
                      false ->

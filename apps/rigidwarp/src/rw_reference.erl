@@ -12,22 +12,22 @@
 %% velocities at time T, sorted by id.
 -type body_frame() :: {Id :: binary(), P :: rw_vec:vec(), V :: rw_vec:vec(),
                        Q :: rw_quat:quat() | undefined, W :: rw_vec:vec() | undefined}.
--type frame() :: {frame, T :: non_neg_integer(), [body_frame()]}.
+%% T is in ms: an integer when whole (always, with a 1 ms tick).
+-type frame() :: {frame, T :: number(), [body_frame()]}.
 -type stats() :: #{substeps := non_neg_integer(), body_substeps := non_neg_integer(),
                    pair_contacts := non_neg_integer(), fixture_contacts := non_neg_integer(),
-                   frames := non_neg_integer(), sim_ms := non_neg_integer()}.
--type options() :: #{until => pos_integer(),
-                     on_frame => fun((frame()) -> any())}.
+                   frames := non_neg_integer(), sim_ms := number()}.
+-type options() :: #{on_frame => fun((frame()) -> any())}.
 
 -spec run(#scene{}, options()) -> {ok, stats()}.
-run(#scene{duration_ms = Duration, substep_ms = Dt, frame_ms = FrameMs, spheres = Spheres,
-           initial = Initial} = Scene, Opts) ->
-    End = maps:get(until, Opts, Duration),
-    OnFrame = maps:get(on_frame, Opts, fun(_) -> ok end),
+run(#scene{duration = End, substep = Dt, frame = Frame, spheres = Spheres, initial = Initial} = Scene, Opts) ->
+    OnFrame0 = maps:get(on_frame, Opts, fun(_) -> ok end),
+    %% frames leave the engine with their time in ms
+    OnFrame = fun({frame, T, Bodies}) -> OnFrame0({frame, rw_scene:ms(Scene, T), Bodies}) end,
     Bodies = list_to_tuple(Spheres),
     Stats0 = #{substeps => 0, body_substeps => 0, pair_contacts => 0, fixture_contacts => 0,
-               frames => 0, sim_ms => End},
-    loop(0, End, Dt, FrameMs, own_grid(Scene), Bodies, list_to_tuple(Initial), OnFrame, Stats0).
+               frames => 0, sim_ms => rw_scene:ms(Scene, End)},
+    loop(0, End, Dt, Frame, own_grid(Scene), Bodies, list_to_tuple(Initial), OnFrame, Stats0).
 
 %% The scene's cell size is the TVHT's. The reference rebuilds its grid
 %% every substep and checks every pair sharing a cell, for which cells of
@@ -37,8 +37,8 @@ own_grid(#scene{spheres = []} = Scene) -> Scene;
 own_grid(#scene{spheres = Spheres} = Scene) ->
     Scene#scene{cell_size = 2.0 * lists:max([R || #sphere{radius = R} <- Spheres])}.
 
-loop(T, End, Dt, FrameMs, Scene, Bodies, States, OnFrame, Stats) ->
-    Frame = T rem FrameMs =:= 0 orelse T =:= End,
+loop(T, End, Dt, FrameT, Scene, Bodies, States, OnFrame, Stats) ->
+    Frame = T rem FrameT =:= 0 orelse T =:= End,
     {Next, Post, Counts} = substep(Scene, Bodies, States),
     Stats1 = maps:map(fun(K, V) -> V + maps:get(K, Counts, 0) end, Stats),
     Stats2 = case Frame of
@@ -49,7 +49,7 @@ loop(T, End, Dt, FrameMs, Scene, Bodies, States, OnFrame, Stats) ->
              end,
     case T >= End of
         true -> {ok, Stats2#{substeps := T div Dt}};
-        false -> loop(T + Dt, End, Dt, FrameMs, Scene, Bodies, Next, OnFrame, Stats2)
+        false -> loop(T + Dt, End, Dt, FrameT, Scene, Bodies, Next, OnFrame, Stats2)
     end.
 
 frame_bodies(Bodies, States, Post) ->

@@ -4,14 +4,15 @@
 -module(rw_scene).
 -include("rigidwarp.hrl").
 -include_lib("kernel/include/file.hrl").
--export([load/1, load/2, from_map/2, from_binary/2, format_error/1, max_abs/0]).
+-export([load/1, load/2, from_map/2, from_binary/2, format_error/1, max_abs/0, ms/2, ticks/2, whole_ms/1, duration_ms/1]).
 -export_type([error/0, overrides/0]).
 
 -type path() :: [binary() | non_neg_integer()].
 -type error() :: {scene_error, File :: string() | undefined, path(), Message :: string()}.
 %% Values that replace the scene's own (from CLI flags or the shell).
--type overrides() :: #{duration_ms => pos_integer(), substep_ms => pos_integer(),
-                       stride_ms => pos_integer(), frame_ms => pos_integer(),
+%% Times in ms (whole microseconds: 0.5 is a valid substep).
+-type overrides() :: #{duration_ms => number(), substep_ms => number(),
+                       stride_ms => number(), frame_ms => number(),
                        buckets => pos_integer(), integrator => rw_integrate:integrator(),
                        ccd => boolean()}.
 
@@ -124,14 +125,17 @@ build(Map, Overrides, File) ->
     known_keys(Map, ?TOP_KEYS, []),
     Name = string_field(Map, <<"name">>, [], required),
     _ = string_field(Map, <<"description">>, [], <<>>),
-    Substep = override(substep_ms, Overrides, fun() -> pos_int(Map, <<"substep_ms">>, [], 1) end),
-    Duration = override(duration_ms, Overrides, fun() -> pos_int(Map, <<"duration_ms">>, [], required) end),
-    Stride = override(stride_ms, Overrides, fun() -> pos_int(Map, <<"stride_ms">>, [], 64 * Substep) end),
-    Frame = override(frame_ms, Overrides, fun() -> pos_int(Map, <<"frame_ms">>, [], 10 * Substep) end),
+    %% times are read in whole microseconds, then counted in ticks
+    Substep = time_field(substep_ms, Map, Overrides, 1000),
+    Duration = time_field(duration_ms, Map, Overrides, required),
+    Stride = time_field(stride_ms, Map, Overrides, 64 * Substep),
+    Frame = time_field(frame_ms, Map, Overrides, 10 * Substep),
     multiple_of(Duration, Substep, [<<"duration_ms">>]),
     multiple_of(Stride, Substep, [<<"stride_ms">>]),
     multiple_of(Frame, Substep, [<<"frame_ms">>]),
-    Model = model_overrides(model(maps:get(<<"model">>, Map, #{}), Substep / 1000.0), Overrides),
+    %% every time is a multiple of the substep, so this tick divides them all
+    Tick = gcd(1000, Substep),
+    Model = model_overrides(model(maps:get(<<"model">>, Map, #{}), Substep / 1.0e6), Overrides),
     Bodies = list_field(Map, <<"bodies">>, []),
     Generated = generators(list_field(Map, <<"generators">>, [])),
     Parsed = [body(B, [<<"bodies">>, I]) || {I, B} <- enumerate(Bodies)] ++ Generated,
@@ -156,8 +160,8 @@ build(Map, Overrides, File) ->
                                     true -> pos_int(Map, <<"buckets">>, [], required);
                                     false -> undefined
                                 end end),
-    #scene{name = Name, file = File, duration_ms = Duration, substep_ms = Substep,
-           stride_ms = Stride, frame_ms = Frame, model = Model,
+    #scene{name = Name, file = File, tick_us = Tick, duration = Duration div Tick, substep = Substep div Tick,
+           stride = Stride div Tick, frame = Frame div Tick, model = Model,
            spheres = [S || {S, _, _} <- Spheres], initial = [St || {_, St, _} <- Spheres],
            fixtures = Fixtures, cell_size = CellSize, buckets = Buckets}.
 
@@ -169,7 +173,66 @@ override(Key, Overrides, Default) ->
 
 multiple_of(X, Substep, Path) ->
     X rem Substep =:= 0 orelse
-        throw({invalid, Path, fmt("~b ms is not a multiple of the substep (~b ms)", [X, Substep])}).
+        throw({invalid, Path, fmt("~s ms is not a multiple of the substep (~s ms)",
+                                  [format_ms(X), format_ms(Substep)])}).
+
+gcd(A, 0) -> A;
+gcd(A, B) -> gcd(B, A rem B).
+
+%% A time in ms from the overrides or the scene, as whole microseconds.
+time_field(Key, Map, Overrides, Default) ->
+    Name = atom_to_binary(Key),
+    case maps:find(Key, Overrides) of
+        {ok, V} -> to_us(V, [Name]);
+        error ->
+            case get(Map, Name, [], Default) of
+                {default, D} -> D;
+                V -> to_us(V, [Name])
+            end
+    end.
+
+%% Milliseconds to whole microseconds: 0.5 and 0.001 are fine, 0.0005 is
+%% finer than the finest tick.
+to_us(X, _Path) when is_integer(X), X > 0, X =< 1 bsl 40 -> X * 1000;
+to_us(X, Path) when is_integer(X), X > 0 -> invalid(Path, "is too large (~b)", [X]);
+to_us(X, Path) when is_float(X), X > 0.0, X =< 1.0e12 ->
+    Us = round(X * 1000),
+    case Us > 0 andalso abs(X * 1000 - Us) =< 1.0e-6 * Us of
+        true -> Us;
+        false -> invalid(Path, "must be a whole number of microseconds (0.001 ms at the finest), got ~p ms", [X])
+    end;
+to_us(X, Path) -> invalid(Path, "must be a positive number of milliseconds, got ~s", [describe(X)]).
+
+format_ms(Us) when Us rem 1000 =:= 0 -> integer_to_list(Us div 1000);
+format_ms(Us) -> io_lib:format("~w", [Us / 1000]).
+
+%% Ticks of Scene to milliseconds (an integer when whole, as every frame
+%% time of a scene with a 1 ms tick is). Negative (no frame yet) stays.
+-spec ms(#scene{}, integer()) -> number().
+ms(#scene{tick_us = 1000}, T) -> T;
+ms(_Scene, T) when T < 0 -> T;
+ms(#scene{tick_us = U}, T) when T * U rem 1000 =:= 0 -> T * U div 1000;
+ms(#scene{tick_us = U}, T) -> T * U / 1000.
+
+%% How long the scene runs, in ms.
+-spec duration_ms(#scene{}) -> number().
+duration_ms(#scene{duration = D} = Scene) -> ms(Scene, D).
+
+%% Milliseconds to ticks of Scene: error when Ms falls between two ticks.
+-spec ticks(#scene{}, number()) -> {ok, integer()} | error.
+ticks(#scene{tick_us = 1000}, Ms) when is_integer(Ms) -> {ok, Ms};
+ticks(#scene{tick_us = U}, Ms) when is_number(Ms) ->
+    Us = round(Ms * 1000),
+    case abs(Ms * 1000 - Us) =< 1.0e-6 * max(1, abs(Us)) andalso Us rem U =:= 0 of
+        true -> {ok, Us div U};
+        false -> error
+    end.
+
+%% A time in ms as an integer when it is whole (frame times, keys of the
+%% frame ring), so that 20 and 20.0 name the same frame.
+-spec whole_ms(number()) -> number().
+whole_ms(Ms) when is_float(Ms), Ms == trunc(Ms) -> trunc(Ms);
+whole_ms(Ms) -> Ms.
 
 -define(MODEL_KEYS, [<<"gravity">>, <<"restitution">>, <<"friction">>, <<"rotation">>,
                      <<"integrator">>, <<"ccd">>, <<"rest_speed">>, <<"correction">>, <<"slop">>]).

@@ -22,7 +22,7 @@ start_link(Scene, Buckets) -> supervisor:start_link(?MODULE, {sim, Scene, Bucket
 
 -spec init({sim, #scene{}, pos_integer()} | {buckets, #model{}, pos_integer(), pos_integer()} | bodies) ->
           {ok, {supervisor:sup_flags(), [supervisor:child_spec()]}}.
-init({sim, #scene{model = M, substep_ms = Dt}, Buckets}) ->
+init({sim, #scene{model = M, substep = Dt}, Buckets}) ->
     Worker = fun(Id, Mod, Args) -> #{id => Id, start => {Mod, start_link, Args}, restart => permanent,
                                      shutdown => 1000, type => worker} end,
     Sup = fun(Id, Args) -> #{id => Id, start => {supervisor, start_link, [?MODULE, Args]},

@@ -23,7 +23,7 @@ default_buckets() -> 64.
 
 %% Start a simulation; it runs on its own until the scene's end.
 -spec start(#scene{}, options()) -> {ok, handle()} | {error, term()}.
-start(#scene{spheres = Spheres, initial = Initial, duration_ms = End} = Scene, Opts) ->
+start(#scene{spheres = Spheres, initial = Initial, duration = End} = Scene, Opts) ->
     {ok, _} = application:ensure_all_started(rigidwarp),
     NBuckets = case Scene#scene.buckets of
                    undefined -> maps:get(buckets, Opts, default_buckets());
@@ -33,7 +33,7 @@ start(#scene{spheres = Spheres, initial = Initial, duration_ms = End} = Scene, O
         {ok, Sup} ->
             #{tables := TablesPid, gvt := Gvt, buckets := Buckets, bodies := BodySup} = rw_sim_sup:children(Sup),
             #{records := Records, counts := Counts, ring := Ring} = rw_sim_tables:tables(TablesPid),
-            Sim = #sim{scene = Scene, n = length(Spheres), end_ms = End, buckets = Buckets, gvt = Gvt,
+            Sim = #sim{scene = Scene, n = length(Spheres), end_t = End, buckets = Buckets, gvt = Gvt,
                        records = Records, counts = Counts, ring = Ring,
                        stats = counters:new(length(?STAT_NAMES), [write_concurrency]),
                        profile = maps:get(profile, Opts, false),
@@ -71,8 +71,9 @@ new_gvt() ->
     ok = atomics:put(Ref, 1, -1),
     Ref.
 
--spec end_ms(#sim{}) -> non_neg_integer().
-end_ms(#sim{end_ms = End}) -> End.
+%% The end time in ms.
+-spec end_ms(#sim{}) -> number().
+end_ms(#sim{end_t = End, scene = Scene}) -> rw_scene:ms(Scene, End).
 
 -spec stop(handle()) -> ok.
 stop(#{sup := Sup}) ->
@@ -80,7 +81,7 @@ stop(#{sup := Sup}) ->
     ok.
 
 -spec stats(handle()) -> #{atom() => number()}.
-stats(#{sim := #sim{stats = Ref, n = N, end_ms = End, scene = #scene{substep_ms = Dt}, profile = Profile}}) ->
+stats(#{sim := #sim{stats = Ref, n = N, end_t = End, scene = #scene{substep = Dt}, profile = Profile}}) ->
     All = maps:from_list(lists:zip(?STAT_NAMES, [counters:get(Ref, I) || I <- lists:seq(1, length(?STAT_NAMES))])),
     Raw = case Profile of
               true ->
@@ -96,15 +97,15 @@ stats(#{sim := #sim{stats = Ref, n = N, end_ms = End, scene = #scene{substep_ms 
          efficiency => case Computed of 0 -> 1.0; _ -> Committed / Computed end}.
 
 %% How far a running simulation is: GVT, how far the fastest body is ahead
-%% of it, realtime factor so far and the counters.
--spec progress(handle(), integer()) -> map().
-progress(#{sim := #sim{lvts = Lvts, end_ms = End}, started := T0} = H, Gvt) ->
+%% of it, realtime factor so far and the counters (times in ms, as rw_gvt:gvt/1
+%% gives GVT).
+-spec progress(handle(), number()) -> map().
+progress(#{sim := #sim{lvts = Lvts, end_t = End, scene = Scene}, started := T0} = H, Gvt) ->
     #{size := Size} = atomics:info(Lvts),
     Lead = lists:max([atomics:get(Lvts, I) || I <- lists:seq(1, Size, 8)]),
     Wall = max(1, erlang:monotonic_time(millisecond) - T0),
-    G = max(Gvt, 0),
-    (stats(H))#{gvt => Gvt, end_ms => End, max_lvt => Lead, wall_ms => Wall,
-                realtime_factor => G / Wall}.
+    (stats(H))#{gvt => Gvt, end_ms => rw_scene:ms(Scene, End),
+                max_lvt => rw_scene:ms(Scene, Lead), wall_ms => Wall, realtime_factor => max(Gvt, 0) / Wall}.
 
 %% Run to the end, calling on_frame for every committed frame in order.
 -spec run(#scene{}, options()) -> {ok, map()} | {error, term()}.

@@ -87,11 +87,11 @@ viewer_dir() ->
 
 -spec scene_json(source()) -> map().
 scene_json(Source) ->
-    #scene{name = Name, spheres = Spheres, fixtures = Fixtures, frame_ms = F, duration_ms = End} = scene(Source),
-    #{name => Name, frame_ms => F,
+    #scene{name = Name, spheres = Spheres, fixtures = Fixtures, frame = F, duration = End} = Scene = scene(Source),
+    #{name => Name, frame_ms => rw_scene:ms(Scene, F),
       end_ms => case Source of
                     {playback, _, [_ | _] = Frames} -> element(2, lists:last(Frames));
-                    _ -> End
+                    _ -> rw_scene:ms(Scene, End)
                 end,
       source => case Source of {live, _} -> live; _ -> playback end,
       spheres => [#{id => Id, radius => R} || #sphere{id = Id, radius = R} <- Spheres],
@@ -109,7 +109,7 @@ scene({live, #{sim := #sim{scene = S}}}) -> S;
 scene({playback, S, _}) -> S.
 
 %% Frames after T (ms), oldest first, as the frames file encodes them.
--spec frames_after(source(), integer(), pos_integer()) -> [rw_reference:frame()].
+-spec frames_after(source(), number(), pos_integer()) -> [rw_reference:frame()].
 frames_after({playback, _, Frames}, T, Max) ->
     lists:sublist([Fr || {frame, FT, _} = Fr <- Frames, FT > T], min(Max, ?MAX_FRAMES_PER_CALL));
 frames_after({live, Sim}, T, Max) ->
@@ -119,9 +119,9 @@ frames_after({live, Sim}, T, Max) ->
     end.
 
 -spec status(source()) -> map().
-status({playback, #scene{duration_ms = End}, Frames}) ->
+status({playback, #scene{duration = End} = Scene, Frames}) ->
     Last = case Frames of [] -> -1; _ -> element(2, lists:last(Frames)) end,
-    #{gvt => Last, end_ms => min(End, max(Last, 0)), frames => length(Frames)};
+    #{gvt => Last, end_ms => min(rw_scene:ms(Scene, End), max(Last, 0)), frames => length(Frames)};
 status({live, Sim}) ->
     case rigidwarp:stats(Sim) of
         #{} = Stats -> Stats;

@@ -32,22 +32,27 @@ answer("scene", _Query, Source) ->
 answer("status", _Query, Source) ->
     {200, rw_viewer:status(Source)};
 answer("frames", Query, Source) ->
-    case int_param("after", Query, -1) of
+    case number_param("after", Query, -1) of
         {ok, After} ->
             Frames = rw_viewer:frames_after(Source, After, 200),
             {200, {raw, [$[, lists:join($,, [string:trim(rw_frames:encode(F), trailing) || F <- Frames]), $]]}};
         error ->
-            {400, #{error => <<"after must be an integer">>}}
+            {400, #{error => <<"after must be a number (ms)">>}}
     end;
 answer(_, _, _) ->
     {404, #{error => <<"unknown API path">>}}.
 
-int_param(Name, Query, Default) ->
+%% Frame times are in ms, fractional with a sub-millisecond frame interval.
+number_param(Name, Query, Default) ->
     case lists:keyfind(Name, 1, Query) of
         false -> {ok, Default};
         {_, V} ->
-            try {ok, binary_to_integer(unicode:characters_to_binary(V))}
-            catch error:badarg -> error
+            Bin = unicode:characters_to_binary(V),
+            try {ok, binary_to_integer(Bin)}
+            catch error:badarg ->
+                    try {ok, binary_to_float(Bin)}
+                    catch error:badarg -> error
+                    end
             end
     end.
 

@@ -5,7 +5,7 @@
 -include("rigidwarp.hrl").
 
 scene(Spheres, Fixtures, Model) ->
-    #scene{name = <<"t">>, duration_ms = 10, substep_ms = 1, stride_ms = 1, frame_ms = 1, model = Model,
+    #scene{name = <<"t">>, duration = 10, substep = 1, stride = 1, frame = 1, model = Model,
            spheres = [rw_shape:sphere(I, Id, R, 1.0) || {I, {Id, R}} <- lists:zip(lists:seq(0, length(Spheres) - 1),
                                                                                  Spheres)],
            initial = [], fixtures = [#fixture{idx = 9, id = <<"f">>, shape = S} || S <- Fixtures], cell_size = 1.0}.

@@ -25,7 +25,7 @@ set_body(N, Key, Value) ->
 
 valid_scene_test() ->
     {ok, #scene{spheres = [#sphere{id = <<"a">>, idx = 0}, #sphere{id = <<"b">>, idx = 1}],
-                substep_ms = 1, stride_ms = 64, frame_ms = 10, model = #model{gravity = undefined,
+                substep = 1, stride = 64, frame = 10, tick_us = 1000, model = #model{gravity = undefined,
                                                                               rotation = false}}} =
         rw_scene:from_map(base(), #{}).
 
@@ -44,8 +44,9 @@ messages_name_the_path_test_() ->
          {(base())#{<<"model">> => #{<<"restitution">> => 1.5}}, "$.model.restitution: must be between 0 and 1"},
          {(base())#{<<"model">> => #{<<"integrator">> => <<"rk4">>}}, "$.model.integrator: must be"},
          {(base())#{<<"substep_ms">> => 3}, "$.duration_ms: 100 ms is not a multiple of the substep (3 ms)"},
-         {(base())#{<<"stride_ms">> => 0}, "$.stride_ms: must be a positive integer, got 0"},
-         {(base())#{<<"frame_ms">> => 2.5}, "$.frame_ms: must be a positive integer, got 2.5"},
+         {(base())#{<<"stride_ms">> => 0}, "$.stride_ms: must be a positive number of milliseconds, got 0"},
+         {(base())#{<<"frame_ms">> => 2.5}, "$.frame_ms: 2.5 ms is not a multiple of the substep (1 ms)"},
+         {(base())#{<<"frame_ms">> => <<"10">>}, "$.frame_ms: must be a positive number of milliseconds, got \"10\""},
          {maps:remove(<<"name">>, base()), "$.name: is required"},
          {(base())#{<<"bodies">> => []}, "$.bodies: the scene has no dynamic body"},
          {(base())#{<<"bodies">> => [#{<<"id">> => <<"p">>, <<"shape">> => <<"plane">>, <<"normal">> => [0, 0, 0]},
@@ -73,11 +74,52 @@ bad_json_test_() ->
      ?_assertMatch({error, {scene_error, _, [], "invalid JSON" ++ _}}, rw_scene:from_binary(<<0, 255, 12>>, #{}))].
 
 overrides_apply_before_validation_test() ->
-    {ok, #scene{duration_ms = 50, substep_ms = 2, stride_ms = 8}} =
+    {ok, #scene{duration = 50, substep = 2, stride = 8, tick_us = 1000}} =
         rw_scene:from_map(base(), #{overrides => #{duration_ms => 50, substep_ms => 2, stride_ms => 8,
                                                   frame_ms => 10}}),
     {error, E} = rw_scene:from_map(base(), #{overrides => #{duration_ms => 51, substep_ms => 2}}),
     ?assertMatch({match, _}, re:run(rw_scene:format_error(E), "duration_ms: 51 ms")).
+
+%% A substep below 1 ms makes the tick finer: the largest whole number of
+%% microseconds dividing 1 ms and the substep. Whole ms keep the 1 ms tick.
+sub_millisecond_substeps_test_() ->
+    Load = fun(Times) -> rw_scene:from_map(maps:merge(base(), Times), #{}) end,
+    [?_assertMatch({ok, #scene{tick_us = 500, substep = 1, stride = 128, frame = 20, duration = 200,
+                               model = #model{dt = 0.0005}}},
+                   Load(#{<<"substep_ms">> => 0.5, <<"stride_ms">> => 64, <<"frame_ms">> => 10,
+                          <<"duration_ms">> => 100})),
+     ?_assertMatch({ok, #scene{tick_us = 1, substep = 1, duration = 20000, model = #model{dt = 1.0e-6}}},
+                   Load(#{<<"substep_ms">> => 0.001, <<"duration_ms">> => 20})),
+     %% 1.5 ms: ticks of 0.5 ms, 3 per substep
+     ?_assertMatch({ok, #scene{tick_us = 500, substep = 3, frame = 30}},
+                   Load(#{<<"substep_ms">> => 1.5, <<"frame_ms">> => 15, <<"stride_ms">> => 15,
+                          <<"duration_ms">> => 30})),
+     ?_assertMatch({ok, #scene{tick_us = 1000, substep = 2}}, Load(#{<<"substep_ms">> => 2.0})),
+     %% the same substep from an override
+     ?_assertMatch({ok, #scene{tick_us = 250, substep = 1}},
+                   rw_scene:from_map(base(), #{overrides => #{substep_ms => 0.25}})),
+     ?_assertMatch({ok, #scene{model = #model{dt = 0.002}}}, Load(#{<<"substep_ms">> => 2})),
+     ?_assertEqual("$.substep_ms: must be a whole number of microseconds (0.001 ms at the finest), got 0.0005 ms",
+                   rw_scene:format_error(element(2, Load(#{<<"substep_ms">> => 0.0005})))),
+     ?_assertEqual("$.frame_ms: 10 ms is not a multiple of the substep (0.3 ms)",
+                   rw_scene:format_error(element(2, Load(#{<<"substep_ms">> => 0.3, <<"duration_ms">> => 30,
+                                                           <<"frame_ms">> => 10})))),
+     ?_assertEqual("$.substep_ms: must be a positive number of milliseconds, got -1",
+                   rw_scene:format_error(element(2, Load(#{<<"substep_ms">> => -1}))))].
+
+ticks_and_ms_test_() ->
+    {ok, Half} = rw_scene:from_map((base())#{<<"substep_ms">> => 0.5}, #{}),
+    {ok, Whole} = rw_scene:from_map(base(), #{}),
+    [?_assertEqual(3, rw_scene:ms(Whole, 3)),
+     ?_assertEqual(-1, rw_scene:ms(Half, -1)),
+     ?_assertEqual(0.5, rw_scene:ms(Half, 1)),
+     ?_assertEqual(10, rw_scene:ms(Half, 20)),
+     ?_assertEqual({ok, 20}, rw_scene:ticks(Half, 10)),
+     ?_assertEqual({ok, 21}, rw_scene:ticks(Half, 10.5)),
+     ?_assertEqual(error, rw_scene:ticks(Half, 10.25)),
+     ?_assertEqual({ok, 7}, rw_scene:ticks(Whole, 7.0)),
+     ?_assertEqual(20, rw_scene:whole_ms(20.0)),
+     ?_assertEqual(0.5, rw_scene:whole_ms(0.5))].
 
 model_overrides_test() ->
     Map = (base())#{<<"model">> => #{<<"integrator">> => <<"explicit_euler">>, <<"ccd">> => true}},

@@ -1,7 +1,7 @@
 %% The `rigidwarp` escript: batch runs of scene files.
 %% Exit codes: 0 ok, 2 bad input (flags or scene), 1 runtime failure.
 -module(rw_cli).
--export([main/1, parse/1, pos_int/2]).
+-export([main/1, parse/1, pos_int/2, pos_ms/2]).
 
 -define(RUN_HELP,
 "  run SCENE.json [options]   run a scene; the summary JSON is the last line on stdout
@@ -10,7 +10,7 @@
       --buckets N            TVHT bucket processes (default: the scene's buckets, else 64)
       --frames FILE          write committed frames as JSON Lines to FILE
       --until MS             simulate up to MS milliseconds (default: the scene's duration_ms)
-      --substep MS           substep in ms (default: the scene's substep_ms)
+      --substep MS           substep in ms, 0.001 at the finest (default: the scene's substep_ms)
       --stride MS            LVT_ub - GVT in ms (default: the scene's stride_ms)
       --frame-ms MS          frame interval in ms (default: the scene's frame_ms)
       --integrator NAME      symplectic_euler, verlet or explicit_euler (default: the scene's)
@@ -43,7 +43,7 @@
                              NAME:MS to end at MS (default: projectile, ball_drop,
                              head_on_elastic, newtons_cradle, fast_thin_wall, bouncing_50_250:1000)
       --until MS             end time of the scenes without their own (default: duration_ms)
-      --substeps LIST        substeps in ms (default 1,2,4,8,16; 1 ms is the tick)
+      --substeps LIST        substeps in ms (default 0.5,1,2,4,8,16)
       --strides LIST         strides in ms, rounded up to the substep (default 16,64,256)
       --integrators LIST     from symplectic_euler,verlet,explicit_euler (default: all three)
       --ccd LIST             off,on (default), off or on
@@ -160,10 +160,10 @@ parse(["--schedulers", V | Rest], F, O, Q) ->
     parse(Rest, F, O#{schedulers => N}, Q);
 parse(["--buckets", V | Rest], F, O, Q) -> parse(Rest, F, O#{buckets => pos_int("--buckets", V)}, Q);
 parse(["--frames", Out | Rest], F, O, Q) -> parse(Rest, F, O#{frames => Out}, Q);
-parse(["--until", V | Rest], F, O, Q) -> parse(Rest, F, O#{until => pos_int("--until", V)}, Q);
-parse(["--substep", V | Rest], F, O, Q) -> parse(Rest, F, O#{substep => pos_int("--substep", V)}, Q);
-parse(["--stride", V | Rest], F, O, Q) -> parse(Rest, F, O#{stride => pos_int("--stride", V)}, Q);
-parse(["--frame-ms", V | Rest], F, O, Q) -> parse(Rest, F, O#{frame_ms => pos_int("--frame-ms", V)}, Q);
+parse(["--until", V | Rest], F, O, Q) -> parse(Rest, F, O#{until => pos_ms("--until", V)}, Q);
+parse(["--substep", V | Rest], F, O, Q) -> parse(Rest, F, O#{substep => pos_ms("--substep", V)}, Q);
+parse(["--stride", V | Rest], F, O, Q) -> parse(Rest, F, O#{stride => pos_ms("--stride", V)}, Q);
+parse(["--frame-ms", V | Rest], F, O, Q) -> parse(Rest, F, O#{frame_ms => pos_ms("--frame-ms", V)}, Q);
 parse(["--integrator", V | Rest], F, O, Q) ->
     Known = [atom_to_list(I) || I <- rw_integrate:integrators()],
     lists:member(V, Known) orelse
@@ -180,6 +180,26 @@ parse([[$- | _] = Flag | _], _, _, _) ->
 parse([File | Rest], undefined, O, Q) -> parse(Rest, File, O, Q);
 parse([Extra | _], _, _, _) -> throw({usage, "unexpected argument " ++ Extra}).
 
+%% A time in ms: an integer, or a decimal such as 0.5 (the scene checks
+%% that it is a whole number of microseconds).
+-spec pos_ms(string(), string()) -> number().
+pos_ms(Flag, V) ->
+    try list_to_integer(V) of
+        I when I > 0, I =< 1 bsl 40 -> I;
+        _ -> not_ms(Flag, V)
+    catch
+        error:badarg ->
+            try list_to_float(V) of
+                X when X > 0.0, X =< 1.0e12 -> X;
+                _ -> not_ms(Flag, V)
+            catch
+                error:badarg -> not_ms(Flag, V)
+            end
+    end.
+
+-spec not_ms(string(), string()) -> no_return().
+not_ms(Flag, V) -> throw({usage, Flag ++ " must be a positive number of ms (such as 2 or 0.5), got " ++ V}).
+
 -spec pos_int(string(), string()) -> pos_integer().
 pos_int(Flag, V) ->
     try list_to_integer(V) of
@@ -194,7 +214,7 @@ run({File, Opts, Quiet}) ->
                       {ok, _} = Ok -> Ok;
                       {error, Msg} -> throw({bad_input, Msg})
                   end,
-    Total = element(4, Scene),
+    Total = rw_scene:duration_ms(Scene),
     {Progress, Finish} = case Quiet of
                              true -> {#{}, fun() -> ok end};
                              false -> progress(Total, is_terminal())
@@ -241,10 +261,15 @@ progress_line(Total, #{gvt := G, realtime_factor := Rt} = P, Wall) ->
           end,
     Engine = case P of
                  #{max_lvt := MaxLvt, rollbacks := Rb} ->
-                     io_lib:format("  GVT lag ~b ms  rollbacks ~b", [max(0, MaxLvt - G), Rb]);
+                     io_lib:format("  GVT lag ~s ms  rollbacks ~b", [ms(max(0, MaxLvt - G)), Rb]);
                  _ -> ""
              end,
-    lists:flatten(io_lib:format("rigidwarp: t=~b/~b ms  realtime x~.2f~s~s", [max(G, 0), Total, float(Rt), Engine, Eta])).
+    lists:flatten(io_lib:format("rigidwarp: t=~s/~s ms  realtime x~.2f~s~s",
+                                [ms(max(G, 0)), ms(Total), float(Rt), Engine, Eta])).
+
+%% A time in ms as people write it: 20, 0.5.
+ms(T) when is_integer(T) -> integer_to_list(T);
+ms(T) -> float_to_list(T, [short]).
 
 %% stderr on a terminal? (io:columns/0 cannot tell in an escript on OTP 25.)
 is_terminal() ->

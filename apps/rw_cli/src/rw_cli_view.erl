@@ -76,7 +76,7 @@ plot(Gnuplot, #scene{name = Name, spheres = Spheres, fixtures = Fixtures}, {fram
     Objects = lists:append([fixture_object(F) || F <- Fixtures]),
     Script = [io_lib:format("set terminal pngcairo size 1000,800 font 'sans,11'~n"
                             "set output '~ts'~n"
-                            "set title '~ts  t = ~b ms  (front view: x right, y up)' noenhanced~n"
+                            "set title '~ts  t = ~p ms  (front view: x right, y up)' noenhanced~n"
                             "set size ratio -1~nset key off~nset grid~n"
                             "set xrange [~g:~g]~nset yrange [~g:~g]~n", [Out, Name, T, X0, X1, Y0, Y1]),
               Objects,

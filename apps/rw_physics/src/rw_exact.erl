@@ -24,7 +24,7 @@
 -type wall() :: {N :: rw_vec:vec(), Off :: float()}
               | {N :: rw_vec:vec(), Off :: float(), {Centre :: rw_vec:vec(), HalfExtents :: rw_vec:vec()}}.
 -type world() :: #{gravity := rw_vec:vec() | undefined, restitution := float(), planes := [wall()]}.
--type frame() :: {Tms :: non_neg_integer(), [{binary(), rw_vec:vec(), rw_vec:vec()}]}.
+-type frame() :: {Tms :: number(), [{binary(), rw_vec:vec(), rw_vec:vec()}]}.
 
 -define(REST_SPEED, 1.0e-9).
 -define(MAX_EVENTS, 1000000).
@@ -33,7 +33,7 @@
 %% happened: {Frames, Events} with Events = [{Tseconds, What}] in order,
 %% What = {pair, I, J} (1-based positions in Bodies) or {plane, I, K}
 %% (K-th wall of the world).
--spec run(world(), [body()], [non_neg_integer()]) -> {[frame()], [{float(), term()}]}.
+-spec run(world(), [body()], [number()]) -> {[frame()], [{float(), term()}]}.
 run(World, Bodies, FrameTimes) ->
     Bs = list_to_tuple(Bodies),
     step(World, Bs, 0.0, next_event(World, Bs, 0.0), FrameTimes, [], [], 0).
