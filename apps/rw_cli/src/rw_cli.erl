@@ -2,6 +2,7 @@
 %% Exit codes: 0 ok, 2 bad input (flags or scene), 1 runtime failure.
 -module(rw_cli).
 -export([main/1, parse/1, pos_int/2, pos_ms/2]).
+-include_lib("rigidwarp/include/rigidwarp.hrl").
 
 -define(RUN_HELP,
 "  run SCENE.json [options]   run a scene; the summary JSON is the last line on stdout
@@ -123,8 +124,9 @@ scenes(Dir) ->
     Files = lists:sort(filelib:wildcard(filename:join(Dir, "*.json"))),
     Files =:= [] andalso throw({bad_input, "no scene files in " ++ Dir}),
     [case rigidwarp:load(F, #{}) of
-         {ok, S} -> io:format("~-24ts ~5b bodies  ~5b ms  ~ts~n",
-                              [filename:basename(F), length(element(9, S)), element(4, S), summary_line(F)]);
+         {ok, #scene{spheres = Spheres} = S} ->
+             io:format("~-24ts ~5b bodies  ~5s ms  ~ts~n",
+                       [filename:basename(F), length(Spheres), ms(rw_scene:duration_ms(S)), summary_line(F)]);
          {error, Msg} -> io:format("~-24ts INVALID: ~ts~n", [filename:basename(F), Msg])
      end || F <- Files],
     0.
