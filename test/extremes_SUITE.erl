@@ -6,6 +6,7 @@
 -module(extremes_SUITE).
 -include_lib("common_test/include/ct.hrl").
 -include_lib("stdlib/include/assert.hrl").
+-include_lib("rigidwarp/include/rigidwarp.hrl").
 -export([all/0, suite/0, init_per_suite/1, end_per_suite/1]).
 -export([substeps_1_to_250_ms/1, substeps_below_1_ms/1, strides_512_and_1024/1, sphere_at_100_radii_per_substep/1,
          far_coordinates_1e9/1, mass_ratio_1e6/1, restitution_0/1, restitution_1_energy/1,
@@ -225,9 +226,9 @@ restitution_1_energy(_Config) ->
     {ok, Bin} = file:read_file(rw_test_lib:scenario("bouncing_50_250.json")),
     Map = jiffy:decode(Bin, [return_maps]),
     Scene = scene(Map#{<<"duration_ms">> => 10000, <<"frame_ms">> => 1}),
-    Spheres = element(9, Scene),
-    Masses = maps:from_list([{Id, M} || {sphere, _, Id, _, M, _, _} <- Spheres]),
-    Radii = maps:from_list([{Id, R} || {sphere, _, Id, R, _, _, _} <- Spheres]),
+    #scene{spheres = Spheres} = Scene,
+    Masses = maps:from_list([{Id, M} || #sphere{id = Id, mass = M} <- Spheres]),
+    Radii = maps:from_list([{Id, R} || #sphere{id = Id, radius = R} <- Spheres]),
     Ke = fun({frame, _, Bodies}) -> lists:sum([0.5 * maps:get(Id, Masses) * rw_vec:len2(V)
                                                || {Id, _, V, _, _} <- Bodies]) end,
     Frames = list_to_tuple(reference(Scene)),
