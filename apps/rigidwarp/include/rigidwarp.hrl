@@ -7,7 +7,7 @@
 %% Times inside the engines are integer ticks. A tick is 1 ms, as in the
 %% paper, unless the scene's times need a finer one (a 0.5 ms substep): then
 %% it is the largest whole number of microseconds that divides 1 ms and
-%% every time of the scene (rw_scene:ms/2 and ticks/2 convert). Users see
+%% every time of the scene (rw_scene:ms/2 converts). Users see
 %% milliseconds only.
 -record(scene, {
     name :: binary(),

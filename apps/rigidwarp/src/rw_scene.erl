@@ -4,7 +4,7 @@
 -module(rw_scene).
 -include("rigidwarp.hrl").
 -include_lib("kernel/include/file.hrl").
--export([load/1, load/2, from_map/2, from_binary/2, format_error/1, max_abs/0, ms/2, ticks/2, whole_ms/1, duration_ms/1]).
+-export([load/1, load/2, from_map/2, from_binary/2, format_error/1, max_abs/0, ms/2, whole_ms/1, duration_ms/1]).
 -export_type([error/0, overrides/0]).
 
 -type path() :: [binary() | non_neg_integer()].
@@ -217,16 +217,6 @@ ms(#scene{tick_us = U}, T) -> T * U / 1000.
 %% How long the scene runs, in ms.
 -spec duration_ms(#scene{}) -> number().
 duration_ms(#scene{duration = D} = Scene) -> ms(Scene, D).
-
-%% Milliseconds to ticks of Scene: error when Ms falls between two ticks.
--spec ticks(#scene{}, number()) -> {ok, integer()} | error.
-ticks(#scene{tick_us = 1000}, Ms) when is_integer(Ms) -> {ok, Ms};
-ticks(#scene{tick_us = U}, Ms) when is_number(Ms) ->
-    Us = round(Ms * 1000),
-    case abs(Ms * 1000 - Us) =< 1.0e-6 * max(1, abs(Us)) andalso Us rem U =:= 0 of
-        true -> {ok, Us div U};
-        false -> error
-    end.
 
 %% A time in ms as an integer when it is whole (frame times, keys of the
 %% frame ring), so that 20 and 20.0 name the same frame.

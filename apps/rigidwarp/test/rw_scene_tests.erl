@@ -107,17 +107,13 @@ sub_millisecond_substeps_test_() ->
      ?_assertEqual("$.substep_ms: must be a positive number of milliseconds, got -1",
                    rw_scene:format_error(element(2, Load(#{<<"substep_ms">> => -1}))))].
 
-ticks_and_ms_test_() ->
+ms_of_ticks_test_() ->
     {ok, Half} = rw_scene:from_map((base())#{<<"substep_ms">> => 0.5}, #{}),
     {ok, Whole} = rw_scene:from_map(base(), #{}),
     [?_assertEqual(3, rw_scene:ms(Whole, 3)),
      ?_assertEqual(-1, rw_scene:ms(Half, -1)),
      ?_assertEqual(0.5, rw_scene:ms(Half, 1)),
      ?_assertEqual(10, rw_scene:ms(Half, 20)),
-     ?_assertEqual({ok, 20}, rw_scene:ticks(Half, 10)),
-     ?_assertEqual({ok, 21}, rw_scene:ticks(Half, 10.5)),
-     ?_assertEqual(error, rw_scene:ticks(Half, 10.25)),
-     ?_assertEqual({ok, 7}, rw_scene:ticks(Whole, 7.0)),
      ?_assertEqual(20, rw_scene:whole_ms(20.0)),
      ?_assertEqual(0.5, rw_scene:whole_ms(0.5))].
 
