@@ -4,6 +4,7 @@
 -include_lib("common_test/include/ct.hrl").
 -include_lib("stdlib/include/assert.hrl").
 -export([all/0, suite/0]).
+-export([bench_machine/1]).
 -export([help/1, validate_every_scenario/1, summary_is_last_line/1, frames_file/1,
          bad_flags_exit_2/1, integrator_and_ccd_flags/1, bad_scene_exit_2/1, scenes_lists_bundled/1, bad_input_corpus/1,
          generated_bad_inputs/1, progress_line/1, snapshot_png/1, shell_api_rejects_bad_arguments/1]).
@@ -12,7 +13,7 @@ suite() -> [{timetrap, {minutes, 5}}].
 
 all() -> [help, validate_every_scenario, summary_is_last_line, frames_file, integrator_and_ccd_flags, bad_flags_exit_2,
           bad_scene_exit_2, scenes_lists_bundled, bad_input_corpus, generated_bad_inputs, progress_line,
-          snapshot_png, shell_api_rejects_bad_arguments].
+          snapshot_png, shell_api_rejects_bad_arguments, bench_machine].
 
 help(_Config) ->
     {0, Out, _} = rw_test_lib:run_escript(["help"]),
@@ -132,7 +133,10 @@ bad_flags_exit_2(_Config) ->
              {["bench", "accuracy", "--plot"], "--plot needs a value"},
              {["bench", "accuracy", "--scenes", "projectile:soon"], "--scenes projectile: must be a positive number of ms"},
              {["bench", "accuracy", "--scenes", "no_such_scene"], "scenarios/no_such_scene.json: $: cannot read file"},
-             {["bench", "accuracy", "--scenes", "cylinders_200"], "cylinders_200: the exact solver models spheres"}],
+             {["bench", "accuracy", "--scenes", "cylinders_200"], "cylinders_200: the exact solver models spheres"},
+             {["bench", "machine", "--repeats", "0"], "--repeats must be a positive integer"},
+             {["bench", "machine", "--fast"], "bench machine takes only --repeats N"},
+             {["bench", "speed"], "unknown benchmark speed (known: accuracy, machine)"}],
     [begin
          {Code, Out, Err} = rw_test_lib:run_escript(Args),
          ct:log("~p -> ~b~n~s", [Args, Code, Err]),
@@ -262,3 +266,13 @@ shell_api_rejects_bad_arguments(_Config) ->
          ?assertMatch({match, _}, re:run(Msg, "\\Q" ++ Expect ++ "\\E"))
      end || {F, Expect} <- Cases],
     ?assertEqual(Before, supervisor:which_children(rw_sims_sup)).
+
+%% The machine's own scaling: one JSON line with every pair's times, whose
+%% ratios give the median and the range, and the schedulers put back.
+bench_machine(_Config) ->
+    {0, Out, _} = rw_test_lib:run_escript(["bench", "machine", "--repeats", "2"]),
+    #{<<"one_scheduler_ms">> := [A1, A2], <<"two_schedulers_ms">> := [B1, B2], <<"scaling">> := S,
+      <<"scaling_min">> := Min, <<"scaling_max">> := Max} = last_json_line(Out),
+    [?assert(T > 0) || T <- [A1, A2, B1, B2]],
+    ?assertEqual(lists:sort([A1 / B1, A2 / B2]), [Min, Max]),
+    ?assert(abs(S - (Min + Max) / 2) < 1.0e-9).

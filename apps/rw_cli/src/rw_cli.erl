@@ -51,6 +51,11 @@
       --out FILE.csv         the CSV file (default doc/bench/accuracy.csv)
       --plot FILE.png        the Pareto plot (default doc/bench/accuracy.png)
       --quiet                no progress lines on stderr
+  bench machine [--repeats N]
+                             this machine's own 1 -> 2 scheduler scaling, without the engine:
+                             two processes doing allocation-heavy Erlang work (as the engine's
+                             bodies do) on 1 and then 2 schedulers, N alternating pairs
+                             (default 3); one JSON line (the 2-core floor is judged against it)
 ").
 -define(USAGE,
 "usage: rigidwarp <command> [options]
