@@ -19,44 +19,11 @@ bench(["machine" | _]) -> throw({usage, "bench machine takes only --repeats N"})
 bench([]) -> throw({usage, "bench needs a benchmark: accuracy or machine"});
 bench([Other | _]) -> throw({usage, "unknown benchmark " ++ Other ++ " (known: accuracy, machine)"}).
 
-%%% The machine's own scaling
+%%% The machine's own scaling (rw_machine)
 
-%% Two processes, each building and dropping small lists and maps (the
-%% allocation and garbage collection that dominate the engine's bodies and
-%% buckets), on 1 scheduler and then on 2, Repeats times alternating: the
-%% shared host's speed drifts, and a 1 -> 2 speedup is only comparable with
-%% what the machine gave plain Erlang work at the same time.
 machine(Repeats) ->
-    Old = erlang:system_info(schedulers_online),
-    Pairs = try [{two_processes_ms(1), two_processes_ms(2)} || _ <- lists:seq(1, Repeats)]
-            after erlang:system_flag(schedulers_online, Old)
-            end,
-    Scaling = [A / B || {A, B} <- Pairs],
-    io:put_chars([jiffy:encode(#{one_scheduler_ms => [A || {A, _} <- Pairs],
-                                 two_schedulers_ms => [B || {_, B} <- Pairs],
-                                 scaling => median(Scaling), scaling_min => lists:min(Scaling),
-                                 scaling_max => lists:max(Scaling),
-                                 schedulers => erlang:system_info(schedulers)}), $\n]),
+    io:put_chars([jiffy:encode(rw_machine:scaling(Repeats)), $\n]),
     0.
-
-two_processes_ms(Schedulers) ->
-    erlang:system_flag(schedulers_online, min(Schedulers, erlang:system_info(schedulers))),
-    Self = self(),
-    T0 = erlang:monotonic_time(microsecond),
-    Pids = [spawn_link(fun() -> Self ! {self(), churn(1000000, #{})} end) || _ <- [1, 2]],
-    [receive {Pid, _} -> ok end || Pid <- Pids],
-    (erlang:monotonic_time(microsecond) - T0) div 1000.
-
-churn(0, M) -> map_size(M);
-churn(N, M) -> churn(N - 1, M#{N band 63 => lists:seq(1, 8)}).
-
-median(Xs) ->
-    S = lists:sort(Xs),
-    N = length(S),
-    case N rem 2 of
-        1 -> lists:nth(N div 2 + 1, S);
-        0 -> (lists:nth(N div 2, S) + lists:nth(N div 2 + 1, S)) / 2
-    end.
 
 defaults() ->
     #{scenes => scenes("--scenes", string:join(rw_accuracy:default_scenes(), ",")),
