@@ -153,9 +153,8 @@ round_up(X, S) -> S * ((X + S - 1) div S).
 
 us(Ms) -> round(Ms * 1000).
 
-%% Whole ms as integers, as frame times are (rw_scene:ms/2).
-ms(Us) when Us rem 1000 =:= 0 -> Us div 1000;
-ms(Us) -> Us / 1000.
+%% Whole ms as integers, as frame times are.
+ms(Us) -> rw_scene:us_to_ms(Us).
 
 %% Time Warp with default schedulers: the fastest of at least MinRuns runs
 %% that take at least MinWall ms together (the machine may be busy with

@@ -4,7 +4,7 @@
 -module(rw_scene).
 -include("rigidwarp.hrl").
 -include_lib("kernel/include/file.hrl").
--export([load/1, load/2, from_map/2, from_binary/2, format_error/1, max_abs/0, ms/2, whole_ms/1, duration_ms/1]).
+-export([load/1, load/2, from_map/2, from_binary/2, format_error/1, max_abs/0, ms/2, us_to_ms/1, whole_ms/1, duration_ms/1]).
 -export_type([error/0, overrides/0]).
 
 -type path() :: [binary() | non_neg_integer()].
@@ -203,16 +203,19 @@ to_us(X, Path) when is_float(X), X > 0.0, X =< 1.0e12 ->
     end;
 to_us(X, Path) -> invalid(Path, "must be a positive number of milliseconds, got ~s", [describe(X)]).
 
-format_ms(Us) when Us rem 1000 =:= 0 -> integer_to_list(Us div 1000);
-format_ms(Us) -> io_lib:format("~w", [Us / 1000]).
+format_ms(Us) -> io_lib:format("~w", [us_to_ms(Us)]).
+
+%% Whole microseconds to ms: an integer when whole (20, 0.5).
+-spec us_to_ms(integer()) -> number().
+us_to_ms(Us) when Us rem 1000 =:= 0 -> Us div 1000;
+us_to_ms(Us) -> Us / 1000.
 
 %% Ticks of Scene to milliseconds (an integer when whole, as every frame
 %% time of a scene with a 1 ms tick is). Negative (no frame yet) stays.
 -spec ms(#scene{}, integer()) -> number().
 ms(#scene{tick_us = 1000}, T) -> T;
 ms(_Scene, T) when T < 0 -> T;
-ms(#scene{tick_us = U}, T) when T * U rem 1000 =:= 0 -> T * U div 1000;
-ms(#scene{tick_us = U}, T) -> T * U / 1000.
+ms(#scene{tick_us = U}, T) -> us_to_ms(T * U).
 
 %% How long the scene runs, in ms.
 -spec duration_ms(#scene{}) -> number().
