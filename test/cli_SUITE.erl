@@ -109,7 +109,7 @@ bad_flags_exit_2(_Config) ->
              {["run", Scene, "--until", "0"], "--until must be a positive number of ms"},
              {["run", Scene, "--until", "1e3"], "--until must be a positive number of ms"},
              {["run", Scene, "--until", "99999999999999999999999"], "--until must be a positive number of ms"},
-             {["run", Scene, "--buckets", "-1"], "--buckets must be a positive integer"},
+             {["run", Scene, "--buckets", "-1"], "--buckets must be a positive integer, got -1"},
              {["run", Scene, "--schedulers", "two"], "--schedulers must be a positive integer"},
              {["run", Scene, Scene], "unexpected argument"},
              {["validate"], "validate takes exactly one scene file"},
@@ -134,7 +134,7 @@ bad_flags_exit_2(_Config) ->
              {["bench", "accuracy", "--scenes", "projectile:soon"], "--scenes projectile: must be a positive number of ms"},
              {["bench", "accuracy", "--scenes", "no_such_scene"], "scenarios/no_such_scene.json: $: cannot read file"},
              {["bench", "accuracy", "--scenes", "cylinders_200"], "cylinders_200: the exact solver models spheres"},
-             {["bench", "machine", "--repeats", "0"], "--repeats must be a positive integer"},
+             {["bench", "machine", "--repeats", "0"], "--repeats must be a positive integer, got 0"},
              {["bench", "machine", "--fast"], "bench machine takes only --repeats N"},
              {["bench", "speed"], "unknown benchmark speed (known: accuracy, machine)"}],
     [begin

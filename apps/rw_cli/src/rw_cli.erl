@@ -211,9 +211,9 @@ not_ms(Flag, V) -> throw({usage, Flag ++ " must be a positive number of ms (such
 pos_int(Flag, V) ->
     try list_to_integer(V) of
         I when I > 0, I =< 1 bsl 40 -> I;
-        _ -> throw({usage, Flag ++ " must be a positive integer (ms), got " ++ V})
+        _ -> throw({usage, Flag ++ " must be a positive integer, got " ++ V})
     catch
-        error:badarg -> throw({usage, Flag ++ " must be a positive integer (ms), got " ++ V})
+        error:badarg -> throw({usage, Flag ++ " must be a positive integer, got " ++ V})
     end.
 
 run({File, Opts, Quiet}) ->
