@@ -203,8 +203,8 @@ run_scene(Scene, Opts) ->
             Error
     end.
 
-run_engine(reference, #scene{duration = Duration} = Scene, Sink, Opts) ->
-    End = rw_scene:ms(Scene, Duration),
+run_engine(reference, Scene, Sink, Opts) ->
+    End = rw_scene:duration_ms(Scene),
     OnFrame = case maps:find(on_progress, Opts) of
                   {ok, P} ->
                       T0 = erlang:monotonic_time(millisecond),
@@ -248,10 +248,9 @@ open_sink(Opts) ->
     end.
 
 %% The engine's own counters, plus what every run reports.
-summary(#scene{name = Name, substep = Dt, stride = Stride, spheres = Spheres, duration = Duration} = Scene,
-        Engine, Stats, WallUs) ->
+summary(#scene{name = Name, substep = Dt, stride = Stride, spheres = Spheres} = Scene, Engine, Stats, WallUs) ->
     WallMs = WallUs / 1000.0,
-    SimMs = rw_scene:ms(Scene, Duration),
+    SimMs = rw_scene:duration_ms(Scene),
     Stats#{scene => Name, engine => Engine, bodies => length(Spheres), substep_ms => rw_scene:ms(Scene, Dt),
            stride_ms => rw_scene:ms(Scene, Stride), sim_ms => SimMs, wall_ms => round(WallMs),
            realtime_factor => SimMs / max(WallMs, 0.001)}.

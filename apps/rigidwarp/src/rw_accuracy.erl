@@ -34,7 +34,7 @@
 %% same for every stride.
 -module(rw_accuracy).
 -include("rigidwarp.hrl").
--export([sweep/1, check_scene/1, measure/3, metrics/3, pareto/1, csv/1, csv_value/1, table/1, columns/0, num/1,
+-export([sweep/1, check_scene/1, measure/3, metrics/3, pareto/1, csv/1, table/1, columns/0, num/1,
          default_scenes/0, default_substeps/0, default_strides/0]).
 -export_type([row/0, options/0, scene_spec/0]).
 
@@ -354,8 +354,7 @@ csv(Rows) ->
     [lists:join(",", [atom_to_list(C) || C <- columns()]), "\n",
      [[lists:join(",", [csv_value(maps:get(C, R, false)) || C <- columns()]), "\n"] || R <- Rows]].
 
-%% One value as CSV (and the table) writes it: 0.5, 16, on as 1.
--spec csv_value(term()) -> iodata().
+%% One value as CSV (and the table) writes it: 0.5, 16, true as 1.
 csv_value(undefined) -> "";
 csv_value(B) when is_binary(B) -> B;
 csv_value(true) -> "1";

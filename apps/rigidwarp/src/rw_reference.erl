@@ -26,7 +26,7 @@ run(#scene{duration = End, substep = Dt, frame = Frame, spheres = Spheres, initi
     OnFrame = fun({frame, T, Bodies}) -> OnFrame0({frame, rw_scene:ms(Scene, T), Bodies}) end,
     Bodies = list_to_tuple(Spheres),
     Stats0 = #{substeps => 0, body_substeps => 0, pair_contacts => 0, fixture_contacts => 0,
-               frames => 0, sim_ms => rw_scene:ms(Scene, End)},
+               frames => 0, sim_ms => rw_scene:duration_ms(Scene)},
     loop(0, End, Dt, Frame, own_grid(Scene), Bodies, list_to_tuple(Initial), OnFrame, Stats0).
 
 %% The scene's cell size is the TVHT's. The reference rebuilds its grid

@@ -87,11 +87,11 @@ viewer_dir() ->
 
 -spec scene_json(source()) -> map().
 scene_json(Source) ->
-    #scene{name = Name, spheres = Spheres, fixtures = Fixtures, frame = F, duration = End} = Scene = scene(Source),
+    #scene{name = Name, spheres = Spheres, fixtures = Fixtures, frame = F} = Scene = scene(Source),
     #{name => Name, frame_ms => rw_scene:ms(Scene, F),
       end_ms => case Source of
                     {playback, _, [_ | _] = Frames} -> element(2, lists:last(Frames));
-                    _ -> rw_scene:ms(Scene, End)
+                    _ -> rw_scene:duration_ms(Scene)
                 end,
       source => case Source of {live, _} -> live; _ -> playback end,
       spheres => [#{id => Id, radius => R} || #sphere{id = Id, radius = R} <- Spheres],
@@ -119,9 +119,9 @@ frames_after({live, Sim}, T, Max) ->
     end.
 
 -spec status(source()) -> map().
-status({playback, #scene{duration = End} = Scene, Frames}) ->
+status({playback, Scene, Frames}) ->
     Last = case Frames of [] -> -1; _ -> element(2, lists:last(Frames)) end,
-    #{gvt => Last, end_ms => min(rw_scene:ms(Scene, End), max(Last, 0)), frames => length(Frames)};
+    #{gvt => Last, end_ms => min(rw_scene:duration_ms(Scene), max(Last, 0)), frames => length(Frames)};
 status({live, Sim}) ->
     case rigidwarp:stats(Sim) of
         #{} = Stats -> Stats;

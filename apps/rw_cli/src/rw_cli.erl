@@ -1,7 +1,7 @@
 %% The `rigidwarp` escript: batch runs of scene files.
 %% Exit codes: 0 ok, 2 bad input (flags or scene), 1 runtime failure.
 -module(rw_cli).
--export([main/1, parse/1, pos_int/2, pos_ms/2]).
+-export([main/1, parse/1, pos_int/2, pos_ms/2, format_ms/1]).
 -include_lib("rigidwarp/include/rigidwarp.hrl").
 
 -define(RUN_HELP,
@@ -131,7 +131,7 @@ scenes(Dir) ->
     [case rigidwarp:load(F, #{}) of
          {ok, #scene{spheres = Spheres} = S} ->
              io:format("~-24ts ~5b bodies  ~5s ms  ~ts~n",
-                       [filename:basename(F), length(Spheres), ms(rw_scene:duration_ms(S)), summary_line(F)]);
+                       [filename:basename(F), length(Spheres), format_ms(rw_scene:duration_ms(S)), summary_line(F)]);
          {error, Msg} -> io:format("~-24ts INVALID: ~ts~n", [filename:basename(F), Msg])
      end || F <- Files],
     0.
@@ -268,15 +268,16 @@ progress_line(Total, #{gvt := G, realtime_factor := Rt} = P, Wall) ->
           end,
     Engine = case P of
                  #{max_lvt := MaxLvt, rollbacks := Rb} ->
-                     io_lib:format("  GVT lag ~s ms  rollbacks ~b", [ms(max(0, MaxLvt - G)), Rb]);
+                     io_lib:format("  GVT lag ~s ms  rollbacks ~b", [format_ms(max(0, MaxLvt - G)), Rb]);
                  _ -> ""
              end,
     lists:flatten(io_lib:format("rigidwarp: t=~s/~s ms  realtime x~.2f~s~s",
-                                [ms(max(G, 0)), ms(Total), float(Rt), Engine, Eta])).
+                                [format_ms(max(G, 0)), format_ms(Total), float(Rt), Engine, Eta])).
 
 %% A time in ms as people write it: 20, 0.5.
-ms(T) when is_integer(T) -> integer_to_list(T);
-ms(T) -> float_to_list(T, [short]).
+-spec format_ms(number()) -> string().
+format_ms(T) when is_integer(T) -> integer_to_list(T);
+format_ms(T) -> float_to_list(T, [short]).
 
 %% stderr on a terminal? (io:columns/0 cannot tell in an escript on OTP 25.)
 is_terminal() ->

@@ -124,7 +124,7 @@ accuracy(#{out := Csv, plot := Png, quiet := Quiet} = Opts) ->
 progress_line(N, #{scene := S, substep_ms := Dt, stride_ms := St, integrator := I, ccd := C,
                    realtime_factor := Rt, pos_err_max := E, missed := M}) ->
     io_lib:format("rigidwarp: [~b] ~ts substep ~s ms stride ~s ms ~s ccd ~s: realtime x~ts, position error ~ts m,"
-                  " ~b missed~n", [N, S, rw_accuracy:csv_value(Dt), rw_accuracy:csv_value(St), I,
+                  " ~b missed~n", [N, S, rw_cli:format_ms(Dt), rw_cli:format_ms(St), I,
                                    case C of true -> "on"; false -> "off" end,
                                    rw_accuracy:num(Rt), rw_accuracy:num(E), M]).
 
