@@ -336,7 +336,8 @@ write_states([{T0, _} | _] = States, Last,
                   undefined -> extents(StList, X, Y, Z, X, Y, Z);
                   _ -> extend(1, Sts, Disps, X, Y, Z, X, Y, Z)
               end,
-    Payload = {Idx, self(), S, T0, Packed, bounds(Extents, S#sphere.radius)},
+    Payload = {Idx, self(), S, T0, Packed, bounds(Extents, S#sphere.radius),
+               {rw_states:reach(StList), scale(Extents)}},
     %% hashing the states to cells and buckets is collision-checking work
     Plan = ?TIMED(D, ?ST_RED_TVHT, plan(cell_spans(States, Disps, Extents, D), Sim)),
     maybe_delay(D),
@@ -379,9 +380,12 @@ state_in(T, [_ | Older], Dt) -> state_in(T, Older, Dt).
 %% A box that holds the sphere at every state of a step (swept over each
 %% substep with CCD), padded against rounding: the buckets skip the
 %% narrowphase for two writes whose boxes are apart.
-bounds({X0, Y0, Z0, X1, Y1, Z1}, R) ->
-    Pad = R + 1.0e-9 * (R + lists:max([abs(X0), abs(Y0), abs(Z0), abs(X1), abs(Y1), abs(Z1)])),
+bounds({X0, Y0, Z0, X1, Y1, Z1} = Extents, R) ->
+    Pad = R + 1.0e-9 * (R + scale(Extents)),
     {X0 - Pad, Y0 - Pad, Z0 - Pad, X1 + Pad, Y1 + Pad, Z1 + Pad}.
+
+%% The largest coordinate's magnitude, for margins above rounding.
+scale({X0, Y0, Z0, X1, Y1, Z1}) -> lists:max([abs(X0), abs(Y0), abs(Z0), abs(X1), abs(Y1), abs(Z1)]).
 
 %% The extents of the positions over the step's states (a hot loop: the
 %% comparisons are written out rather than calls to min/2 and max/2).

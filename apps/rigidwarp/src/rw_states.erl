@@ -9,7 +9,7 @@
 %% angular velocity, then (with CCD) the free displacement of the substep.
 -module(rw_states).
 -include_lib("rw_physics/include/rw_physics.hrl").
--export([pack/4, count/1, position/2, state/2, displacement/2]).
+-export([pack/4, count/1, position/2, state/2, displacement/2, reach/1, first_touch/8]).
 -export_type([packed/0]).
 
 -opaque packed() :: {RecordBytes :: pos_integer(), Rotation :: boolean(), Ccd :: boolean(), binary()}.
@@ -64,3 +64,50 @@ displacement({Size, _, true, Bin}, I) ->
     Skip = I * Size - 24,
     <<_:Skip/binary, X:64/float, Y:64/float, Z:64/float, _/binary>> = Bin,
     {X, Y, Z}.
+
+%% An upper bound on how far the centre moves from one state to the next
+%% (the largest |dx| + |dy| + |dz|, which is at least the distance), for
+%% first_touch/8 to skip substeps at which two bodies cannot touch yet.
+-spec reach([#st{}]) -> float().
+reach([#st{p = {X, Y, Z}} | Rest]) -> reach(Rest, X, Y, Z, 0.0).
+
+reach([], _X, _Y, _Z, Max) -> Max;
+reach([#st{p = {X, Y, Z}} | Rest], PX, PY, PZ, Max) ->
+    Step = abs(X - PX) + abs(Y - PY) + abs(Z - PZ),
+    reach(Rest, X, Y, Z, if Step > Max -> Step; true -> Max end).
+
+%% The first offset K in 0..Left at which the positions IA + K of StsA and
+%% IB + K of StsB are closer than Sum (the test the narrowphase makes:
+%% distance squared below Sum squared), or none. Reach is ReachA + ReachB
+%% (reach/1): while the centres are D apart, for the next
+%% (D - Sum - Margin) / Reach substeps they stay more than Sum + Margin
+%% apart, and are not read. Margin is far above the rounding of D and of
+%% the multiples of Reach, so no touch is ever skipped; the offset found is
+%% the one a check of every substep finds.
+-spec first_touch(packed(), pos_integer(), packed(), pos_integer(), non_neg_integer(), float(), float(), float()) ->
+          non_neg_integer() | none.
+first_touch(StsA, IA, StsB, IB, Left, Sum, Margin, Reach) ->
+    touch(IA, IB, Left, StsA, StsB, Sum, Sum * Sum, Margin, Reach * (1.0 + 1.0e-9), 0).
+
+touch(IA, IB, Left, StsA, StsB, Sum, Sum2, Margin, Reach, K) ->
+    {XA, YA, ZA} = position(StsA, IA),
+    {XB, YB, ZB} = position(StsB, IB),
+    DX = XB - XA, DY = YB - YA, DZ = ZB - ZA,
+    D2 = DX * DX + DY * DY + DZ * DZ,
+    if
+        D2 < Sum2 -> K;
+        Left =:= 0 -> none;
+        true ->
+            Gap = math:sqrt(D2) - Sum - Margin,
+            %% substeps 1..Skip from here are certainly apart
+            Skip = if
+                       Gap =< Reach -> 0;
+                       Gap >= Left * Reach -> Left;
+                       true -> trunc(Gap / Reach)
+                   end,
+            case Skip >= Left of
+                true -> none;
+                false -> touch(IA + Skip + 1, IB + Skip + 1, Left - Skip - 1, StsA, StsB, Sum, Sum2, Margin,
+                               Reach, K + Skip + 1)
+            end
+    end.

@@ -38,3 +38,80 @@ off_heap_test() ->
     {_, _, _, Bin} = rw_states:pack([state(K, false) || K <- lists:seq(1, 4)], undefined, false, false),
     ?assert(byte_size(Bin) > 64),
     ?assert(erts_debug:flat_size(Bin) < 10).
+
+%% first_touch/8 skips substeps at which two bodies are too far apart to
+%% touch: it must find exactly the offset a check of every substep finds.
+%% Straight approaches at full reach are the tight case (one substep
+%% skipped too many misses the touch); random walks, bodies at rest, far
+%% coordinates and touches at the very first or last substep cover the rest.
+first_touch_equals_every_substep_test() ->
+    _ = rand:seed(exsss, {7, 11, 13}),
+    Cases = [touch_case(K) || K <- lists:seq(1, 3000)],
+    Results = [{first_touch(C), brute_touch(C)} || C <- Cases],
+    [?assertEqual(Brute, Skipping) || {Skipping, Brute} <- Results],
+    %% the cases do touch, at many different offsets, and sometimes not
+    Offsets = lists:usort([K || {K, _} <- Results]),
+    ?assert(lists:member(none, Offsets)),
+    ?assert(lists:member(0, Offsets)),
+    ?assert(length(Offsets) > 40).
+
+touch_case(K) ->
+    N = 1 + rand:uniform(80),
+    Offset = case K rem 5 of
+                 0 -> 1.0e9 * (rand:uniform() - 0.5);
+                 _ -> 0.0
+             end,
+    Start = {Offset + 10.0 * rand:uniform(), Offset, Offset},
+    Step = rand:uniform() * math:pow(10.0, rand:uniform(4) - 3),
+    {PathA, PathB} =
+        case K rem 4 of
+            0 -> {line(Start, {-Step, 0.0, 0.0}, N), line({Offset, Offset, Offset}, {0.0, 0.0, 0.0}, N)};
+            1 -> {line(Start, {-Step, 0.0, 0.0}, N), line({Offset, Offset, Offset}, {Step, 0.0, 0.0}, N)};
+            2 -> {walk(Start, Step, N), walk({Offset, Offset, Offset}, Step, N)};
+            3 -> {line(Start, {0.0, 0.0, 0.0}, N), line({Offset, Offset, Offset}, {0.0, 0.0, 0.0}, N)}
+        end,
+    %% a sum of radii met somewhere along the paths, or missed by a hair
+    Dists = [dist(A, B) || {A, B} <- lists:zip(PathA, PathB)],
+    Sum = lists:nth(rand:uniform(N), Dists) * (1.0 + (rand:uniform() - 0.5) * 1.0e-12),
+    IA = rand:uniform(N), IB = IA,
+    {PathA, PathB, IA, IB, N - IA, Sum}.
+
+line(P, D, N) -> [rw_vec:madd(P, D, float(I)) || I <- lists:seq(0, N - 1)].
+
+walk(P, Step, N) ->
+    lists:reverse(lists:foldl(fun(_, [Q | _] = Acc) ->
+                                      Dir = rw_vec:norm({rand:normal(), rand:normal(), rand:normal()}),
+                                      [rw_vec:madd(Q, Dir, Step * rand:uniform()) | Acc]
+                              end, [P], lists:seq(2, N))).
+
+dist(A, B) -> rw_vec:len(rw_vec:sub(A, B)).
+
+packed(Path) -> rw_states:pack([#st{p = P, v = {0.0, 0.0, 0.0}} || P <- Path], undefined, false, false).
+
+first_touch({PathA, PathB, IA, IB, Left, Sum}) ->
+    Sts = fun(Path) -> [#st{p = P, v = {0.0, 0.0, 0.0}} || P <- Path] end,
+    Scale = lists:max([rw_vec:max_abs(P) || P <- PathA ++ PathB]),
+    rw_states:first_touch(packed(PathA), IA, packed(PathB), IB, Left, Sum, 1.0e-9 * (Sum + Scale),
+                          rw_states:reach(Sts(PathA)) + rw_states:reach(Sts(PathB))).
+
+brute_touch({PathA, PathB, IA, IB, Left, Sum}) ->
+    Pairs = lists:zip(lists:nthtail(IA - 1, PathA), lists:nthtail(IB - 1, PathB)),
+    Touch = [K || {K, {{XA, YA, ZA}, {XB, YB, ZB}}} <- lists:zip(lists:seq(0, length(Pairs) - 1), Pairs),
+                  K =< Left,
+                  (XB - XA) * (XB - XA) + (YB - YA) * (YB - YA) + (ZB - ZA) * (ZB - ZA) < Sum * Sum],
+    case Touch of
+        [] -> none;
+        [K | _] -> K
+    end.
+
+reach_bounds_every_move_test() ->
+    _ = rand:seed(exsss, {1, 2, 3}),
+    [begin
+         Path = walk({1.0e9 * rand:uniform(), 0.0, -3.0}, rand:uniform(), 30),
+         Reach = rw_states:reach([#st{p = P} || P <- Path]),
+         Moves = [dist(A, B) || {A, B} <- lists:zip(lists:droplast(Path), tl(Path))],
+         ?assert(Reach >= lists:max(Moves)),
+         ?assert(Reach =< 1.8 * lists:max(Moves))
+     end || _ <- lists:seq(1, 200)],
+    ?assertEqual(0.0, rw_states:reach([#st{p = {1.0, 2.0, 3.0}}, #st{p = {1.0, 2.0, 3.0}}])),
+    ?assertEqual(0.0, rw_states:reach([#st{p = {1.0, 2.0, 3.0}}])).
