@@ -128,7 +128,7 @@ init({#sim{scene = #scene{model = M, substep = Dt, frame = F, stride = Stride}, 
 -spec ready(gen_statem:event_type(), term(), #d{}) -> gen_statem:event_handler_result(atom()).
 ready(info, go, #d{start = St0} = D) ->
     %% the initial state is written like any other, at LVT 0
-    settle(write_states([{0, St0}], 0, D#d{lvt = 0}));
+    settle(write_states(0, [St0], 0, D#d{lvt = 0}));
 ready(info, {delay, Seed, MaxMs}, D) ->
     _ = rand:seed(exsss, Seed),
     {keep_state, D#d{delay = MaxMs}};
@@ -277,7 +277,7 @@ advance(Lvt, Last, D) ->
     {Passed, States} = ?TIMED(D, ?ST_RED_INTEGRATE, chain(Lvt, state_at(Lvt, D), Last, D, [], [])),
     counters:add(D#d.sim#sim.stats, ?ST_COMPUTED, length(States)),
     counters:add(D#d.sim#sim.stats, ?ST_STEPS, 1),
-    D1 = write_states(States, Last, D),
+    D1 = write_states(Lvt + D#d.dt, States, Last, D),
     %% commit every frame time this step moved past
     #d{lvt = NewLvt} = D1,
     ?TIMED(D, ?ST_RED_GVT, lists:foldl(fun({T, St, Post}, Acc) when T < NewLvt -> commit(T, St, Post, Acc);
@@ -290,8 +290,8 @@ timed(Stats, Stage, Fun) ->
     counters:add(Stats, Stage, reductions() - T0),
     Result.
 
-%% The states after T up to Last, and the post-response at each sync
-%% point passed on the way (to commit).
+%% The states after T up to Last (one per substep), and the post-response
+%% at each sync point passed on the way (to commit).
 chain(T, _St, Last, _D, Passed, States) when T >= Last ->
     {lists:reverse(Passed), lists:reverse(States)};
 chain(T, St, Last, #d{model = M, dt = Dt, frame = F, stride = S, end_t = End} = D, Passed, States) ->
@@ -301,7 +301,7 @@ chain(T, St, Last, #d{model = M, dt = Dt, frame = F, stride = S, end_t = End} = 
                   true -> [{T, St, Post} | Passed];
                   false -> Passed
               end,
-    chain(T + Dt, Next, Last, D, Passed1, [{T + Dt, Next} | States]).
+    chain(T + Dt, Next, Last, D, Passed1, [Next | States]).
 
 %% Effects of every known contact at T, in canonical order of partner.
 effects(T, #st{} = St, #d{model = M, sphere = S, contacts = Contacts, sim = Sim}) ->
@@ -318,28 +318,25 @@ effects(T, #st{} = St, #d{model = M, sphere = S, contacts = Contacts, sim = Sim}
         _ -> [E || {_, E} <- lists:keysort(1, Bodies ++ Fixed)]
     end.
 
-%% Write States ([{T, St}], consecutive substeps) to the TVHT under lock;
+%% Write States (one per substep from T0 on) to the TVHT under lock;
 %% stop at the first substep with contacts and send the events for them.
 %% LVT becomes that substep, or Last.
-write_states([{T0, _} | _] = States, Last,
-             #d{idx = Idx, sphere = S, model = M, sim = Sim, written = Written} = D) ->
-    StList = [St || {_, St} <- States],
+write_states(T0, States, Last, #d{idx = Idx, sphere = S, model = M, sim = Sim, written = Written} = D) ->
     DispList = case M#model.ccd of
-                   true -> [rw_integrate:free_displacement(M, St) || St <- StList];
+                   true -> [rw_integrate:free_displacement(M, St) || St <- States];
                    false -> undefined
                end,
-    Sts = list_to_tuple(StList),
-    Disps = case DispList of undefined -> undefined; _ -> list_to_tuple(DispList) end,
-    Packed = rw_states:pack(StList, DispList, M#model.rotation, M#model.ccd),
-    #st{p = {X, Y, Z}} = hd(StList),
-    Extents = case DispList of
-                  undefined -> extents(StList, X, Y, Z, X, Y, Z);
-                  _ -> extend(1, Sts, Disps, X, Y, Z, X, Y, Z)
-              end,
-    Payload = {Idx, self(), S, T0, Packed, bounds(Extents, S#sphere.radius),
-               {rw_states:reach(StList), scale(Extents)}},
+    Packed = rw_states:pack(States, DispList, M#model.rotation, M#model.ccd),
+    {Disps, Extents} = case DispList of
+                           undefined -> {undefined, rw_states:extents(Packed)};
+                           _ ->
+                               DispTuple = list_to_tuple(DispList),
+                               #st{p = {X, Y, Z}} = hd(States),
+                               {DispTuple, extend(1, list_to_tuple(States), DispTuple, X, Y, Z, X, Y, Z)}
+                       end,
+    Payload = {Idx, self(), S, T0, Packed, bounds(Extents, S#sphere.radius)},
     %% hashing the states to cells and buckets is collision-checking work
-    Plan = ?TIMED(D, ?ST_RED_TVHT, plan(cell_spans(States, Disps, Extents, D), Sim)),
+    Plan = ?TIMED(D, ?ST_RED_TVHT, plan(cell_spans(T0, States, Disps, Extents, D), Sim)),
     maybe_delay(D),
     {UpTo, Hits, Ids} = probe_commit(Plan, Payload, Last, Idx),
     Where = [{B, Pid, Cells} || {B, Pid, Cells, _} <- Plan],
@@ -380,21 +377,12 @@ state_in(T, [_ | Older], Dt) -> state_in(T, Older, Dt).
 %% A box that holds the sphere at every state of a step (swept over each
 %% substep with CCD), padded against rounding: the buckets skip the
 %% narrowphase for two writes whose boxes are apart.
-bounds({X0, Y0, Z0, X1, Y1, Z1} = Extents, R) ->
-    Pad = R + 1.0e-9 * (R + scale(Extents)),
+bounds({X0, Y0, Z0, X1, Y1, Z1}, R) ->
+    Pad = R + 1.0e-9 * (R + lists:max([abs(X0), abs(Y0), abs(Z0), abs(X1), abs(Y1), abs(Z1)])),
     {X0 - Pad, Y0 - Pad, Z0 - Pad, X1 + Pad, Y1 + Pad, Z1 + Pad}.
 
-%% The largest coordinate's magnitude, for margins above rounding.
-scale({X0, Y0, Z0, X1, Y1, Z1}) -> lists:max([abs(X0), abs(Y0), abs(Z0), abs(X1), abs(Y1), abs(Z1)]).
-
-%% The extents of the positions over the step's states (a hot loop: the
-%% comparisons are written out rather than calls to min/2 and max/2).
-extents([], X0, Y0, Z0, X1, Y1, Z1) -> {X0, Y0, Z0, X1, Y1, Z1};
-extents([#st{p = {X, Y, Z}} | Rest], X0, Y0, Z0, X1, Y1, Z1) ->
-    extents(Rest, if X < X0 -> X; true -> X0 end, if Y < Y0 -> Y; true -> Y0 end, if Z < Z0 -> Z; true -> Z0 end,
-            if X > X1 -> X; true -> X1 end, if Y > Y1 -> Y; true -> Y1 end, if Z > Z1 -> Z; true -> Z1 end).
-
-%% The same, swept over each substep (CCD: Disps holds the displacements).
+%% The extents of the positions, swept over each substep (CCD: Disps holds
+%% the displacements).
 extend(I, Sts, _Disps, X0, Y0, Z0, X1, Y1, Z1) when I > tuple_size(Sts) -> {X0, Y0, Z0, X1, Y1, Z1};
 extend(I, Sts, Disps, X0, Y0, Z0, X1, Y1, Z1) ->
     #st{p = {X, Y, Z}} = element(I, Sts),
@@ -407,7 +395,7 @@ extend(I, Sts, Disps, X0, Y0, Z0, X1, Y1, Z1) ->
 %% which the body's box (swept with CCD) touches it. Boxes seldom change
 %% between substeps, so cells are enumerated only when they do, and a box
 %% is hashed again only when it leaves the region that keeps its cells.
-cell_spans([{T0, St0} | Rest], Disps, {X0, Y0, Z0, X1, Y1, Z1},
+cell_spans(T0, [St0 | Rest], Disps, {X0, Y0, Z0, X1, Y1, Z1},
            #d{sim = #sim{scene = #scene{cell_size = C}}, sphere = #sphere{radius = R}, dt = Dt} = D) ->
     Box = rw_hash:box(aabb(St0, disp_at(Disps, 1), D), C),
     Region = rw_hash:region(Box, C),
@@ -418,19 +406,22 @@ cell_spans([{T0, St0} | Rest], Disps, {X0, Y0, Z0, X1, Y1, Z1},
         rw_hash:in_region(rw_shape:sphere_aabb({X0, Y0, Z0}, R), Region) andalso
         rw_hash:in_region(rw_shape:sphere_aabb({X1, Y1, Z1}, R), Region) of
         true -> add_run(Box, T0, T0 + length(Rest) * Dt, #{});
-        false -> spans(Rest, 2, Disps, Box, Region, T0, T0, D, #{})
+        false -> spans(Rest, 2, T0 + Dt, Disps, Box, Region, T0, T0, D, #{})
     end.
 
-spans([], _I, _Disps, Box, _Region, Ta, Tb, _D, Acc) ->
+%% State I of the step (at substep T) and the rest.
+spans([], _I, _T, _Disps, Box, _Region, Ta, Tb, _D, Acc) ->
     add_run(Box, Ta, Tb, Acc);
-spans([{T, St} | Rest], I, Disps, Box, Region, Ta, Tb, #d{sim = #sim{scene = #scene{cell_size = C}}} = D, Acc) ->
+spans([St | Rest], I, T, Disps, Box, Region, Ta, Tb,
+      #d{sim = #sim{scene = #scene{cell_size = C}}, dt = Dt} = D, Acc) ->
     AABB = aabb(St, disp_at(Disps, I), D),
     case rw_hash:in_region(AABB, Region) of
-        true -> spans(Rest, I + 1, Disps, Box, Region, Ta, T, D, Acc);
+        true -> spans(Rest, I + 1, T + Dt, Disps, Box, Region, Ta, T, D, Acc);
         false ->
             case rw_hash:box(AABB, C) of
-                Box -> spans(Rest, I + 1, Disps, Box, Region, Ta, T, D, Acc);
-                New -> spans(Rest, I + 1, Disps, New, rw_hash:region(New, C), T, T, D, add_run(Box, Ta, Tb, Acc))
+                Box -> spans(Rest, I + 1, T + Dt, Disps, Box, Region, Ta, T, D, Acc);
+                New -> spans(Rest, I + 1, T + Dt, Disps, New, rw_hash:region(New, C), T, T, D,
+                             add_run(Box, Ta, Tb, Acc))
             end
     end.
 

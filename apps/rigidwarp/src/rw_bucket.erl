@@ -22,11 +22,9 @@
 
 %% One step's states of one body: T0 is the LVT of the first state,
 %% States (and, with CCD, the free displacements) hold one per substep,
-%% Bounds is a box that holds the sphere (swept, with CCD) at all of them,
-%% Reach bounds the centre's move between two states (rw_states:reach/1)
-%% and Scale the coordinates' magnitude (for rounding margins).
+%% Bounds is a box that holds the sphere (swept, with CCD) at all of them.
 -type payload() :: {Idx :: non_neg_integer(), pid(), #sphere{}, T0 :: non_neg_integer(),
-                    States :: rw_states:packed(), Bounds :: bounds(), {Reach :: float(), Scale :: float()}}.
+                    States :: rw_states:packed(), Bounds :: bounds()}.
 -type bounds() :: {float(), float(), float(), float(), float(), float()}.
 %% A cell touched from Ta to Tb (substeps of the payload).
 -type span() :: {rw_hash:cell(), Ta :: non_neg_integer(), Tb :: non_neg_integer()}.
@@ -209,7 +207,7 @@ grant([{From, Owner, Cells, Op} = W | Rest], Kept, S) ->
 locked_op(Owner, {probe, Payload, Spans}, S) ->
     Result = probe(Payload, Spans, S),
     {Result, S#state{probes = (S#state.probes)#{Owner => {Payload, Spans, Result}}}};
-locked_op(Owner, {probe_commit, {Idx, _, _, _, _, _, _} = Payload, Spans, Last}, S) ->
+locked_op(Owner, {probe_commit, {Idx, _, _, _, _, _} = Payload, Spans, Last}, S) ->
     Result = probe(Payload, Spans, S),
     {UpTo, Hits} = case Result of
                        none -> {Last, []};
@@ -228,7 +226,7 @@ locked_op(_Owner, {delete, Idx, R, Cells}, S) ->
 %% one of its cells, with every contact at that LVT. A pair of writes often
 %% shares several cells: their windows are merged first, so that each pair
 %% is checked once, and not at all when their bounds are apart.
-probe({Idx, _, _, _, _, _, _} = Mine, Spans, #state{cells = Cells} = S) ->
+probe({Idx, _, _, _, _, _} = Mine, Spans, #state{cells = Cells} = S) ->
     Windows = lists:foldl(
                 fun({Cell, Ta, Tb}, Acc) ->
                         case Cells of
@@ -256,7 +254,7 @@ scan_windows([{_, {Other, Lo, Hi}} | Rest], Mine, Best, S) ->
 windows([], _Ta, _Tb, Acc) -> Acc;
 windows([{_, OTb, _} | _], Ta, _Tb, Acc) when OTb < Ta -> Acc;
 windows([{OTa, _, _} | Rest], Ta, Tb, Acc) when OTa > Tb -> windows(Rest, Ta, Tb, Acc);
-windows([{OTa, OTb, {OIdx, _, _, OT0, _, _, _} = Other} | Rest], Ta, Tb, Acc) ->
+windows([{OTa, OTb, {OIdx, _, _, OT0, _, _} = Other} | Rest], Ta, Tb, Acc) ->
     Lo = max(Ta, OTa),
     Hi = min(Tb, OTb),
     Key = {OIdx, OT0},
@@ -270,7 +268,7 @@ bound(Hi, none) -> Hi;
 bound(Hi, {BT, _}) -> min(Hi, BT).
 
 %% The two writes' bounds do not overlap: they cannot touch.
-apart({_, _, _, _, _, {AX0, AY0, AZ0, AX1, AY1, AZ1}, _}, {_, _, _, _, _, {BX0, BY0, BZ0, BX1, BY1, BZ1}, _}) ->
+apart({_, _, _, _, _, {AX0, AY0, AZ0, AX1, AY1, AZ1}}, {_, _, _, _, _, {BX0, BY0, BZ0, BX1, BY1, BZ1}}) ->
     AX1 < BX0 orelse BX1 < AX0 orelse AY1 < BY0 orelse BY1 < AY0 orelse AZ1 < BZ0 orelse BZ1 < AZ0.
 
 %% First LVT in [Lo, Hi] at which the two bodies touch. Without CCD the
@@ -278,13 +276,10 @@ apart({_, _, _, _, _, {AX0, AY0, AZ0, AX1, AY1, AZ1}, _}, {_, _, _, _, _, {BX0, 
 %% the substeps at which the two are too far apart to touch yet; the
 %% contact itself is computed in canonical order only on a hit.
 scan(Lo, Hi, _Mine, _Other, Best, _S) when Lo > Hi -> Best;
-scan(Lo, Hi, {_, _, #sphere{radius = RA}, T0A, StsA, _, {ReachA, ScaleA}} = Mine,
-     {_, _, #sphere{radius = RB}, T0B, StsB, _, {ReachB, ScaleB}} = Other, Best,
-     #state{dt = Dt, model = #model{ccd = false}} = S) ->
-    Sum = RA + RB,
-    Margin = 1.0e-9 * (Sum + max(ScaleA, ScaleB)),
+scan(Lo, Hi, {_, _, #sphere{radius = RA}, T0A, StsA, _} = Mine,
+     {_, _, #sphere{radius = RB}, T0B, StsB, _} = Other, Best, #state{dt = Dt, model = #model{ccd = false}} = S) ->
     case rw_states:first_touch(StsA, (Lo - T0A) div Dt + 1, StsB, (Lo - T0B) div Dt + 1, (Hi - Lo) div Dt,
-                               Sum, Margin, ReachA + ReachB) of
+                               RA + RB) of
         none -> Best;
         K -> hit(Lo + K * Dt, Mine, Other, Best, S)
     end;
@@ -308,7 +303,7 @@ hit(T, Mine, Other, Best, #state{model = M, dt = Dt}) ->
         _ -> {T, [Hit]}
     end.
 
-entry({Idx, Pid, Sphere, T0, States, _, _}, T, Dt) ->
+entry({Idx, Pid, Sphere, T0, States, _}, T, Dt) ->
     I = (T - T0) div Dt + 1,
     {Idx, Pid, Sphere, rw_states:state(States, I), rw_states:displacement(States, I)}.
 
@@ -327,7 +322,7 @@ commit(Owner, UpTo, Ids, #state{probes = Probes} = S) ->
     store(Owner, Payload, Spans, Result, UpTo, Ids, S#state{probes = Probes1}).
 
 %% Store a probed payload's states up to UpTo and the contacts it found there.
-store(Owner, {Idx, _, _, _, _, _, _} = Payload, Spans, Result, UpTo, Ids, #state{cells = Cells} = S) ->
+store(Owner, {Idx, _, _, _, _, _} = Payload, Spans, Result, UpTo, Ids, #state{cells = Cells} = S) ->
     Cells1 = lists:foldl(fun({Cell, Ta, Tb}, Acc) when Ta =< UpTo ->
                                  Seg = {Ta, min(Tb, UpTo), Payload},
                                  case Acc of

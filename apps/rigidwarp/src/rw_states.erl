@@ -9,41 +9,78 @@
 %% angular velocity, then (with CCD) the free displacement of the substep.
 -module(rw_states).
 -include_lib("rw_physics/include/rw_physics.hrl").
--export([pack/4, count/1, position/2, state/2, displacement/2, reach/1, first_touch/8]).
--export_type([packed/0]).
+-export([pack/4, count/1, position/2, state/2, displacement/2, extents/1, reach/1, first_touch/6]).
+-export_type([packed/0, extents/0]).
 
--opaque packed() :: {RecordBytes :: pos_integer(), Rotation :: boolean(), Ccd :: boolean(), binary()}.
+%% The box of the positions: {X0, Y0, Z0, X1, Y1, Z1}.
+-type extents() :: {float(), float(), float(), float(), float(), float()}.
+-opaque packed() :: {RecordBytes :: pos_integer(), Rotation :: boolean(), Ccd :: boolean(), binary(),
+                     extents(), Reach :: float() | undefined}.
 
 %% Pack States (in order) with their free displacements (undefined
-%% without CCD).
+%% without CCD). One pass also measures the extents of the positions and
+%% the reach (see reach/1).
 -spec pack([#st{}], [rw_vec:vec()] | undefined, boolean(), boolean()) -> packed().
-pack(States, Disps, Rotation, Ccd) ->
+pack([#st{p = {X, Y, Z}} | _] = States, Disps, Rotation, Ccd) ->
     Size = 8 * (6 + case Rotation of true -> 7; false -> 0 end + case Ccd of true -> 3; false -> 0 end),
-    Bin = case Disps of
-              undefined -> << <<(record(St, Rotation))/binary>> || St <- States >>;
-              _ -> << <<(record(St, Rotation))/binary, X:64/float, Y:64/float, Z:64/float>>
-                      || {St, {X, Y, Z}} <- lists:zip(States, Disps) >>
-          end,
-    {Size, Rotation, Ccd, Bin}.
+    {Bin, Extents, Reach} =
+        try pack(States, Disps, Rotation, <<>>, X, Y, Z, X, Y, Z, X, Y, Z, 0.0)
+        catch
+            %% a move between coordinates near the largest double overflows
+            %% (far beyond what a scene may hold): no reach, and no skipping
+            error:badarith ->
+                {B, E, _} = pack(States, Disps, Rotation, <<>>, 0.0, 0.0, 0.0, X, Y, Z, X, Y, Z, undefined),
+                {B, E, undefined}
+        end,
+    {Size, Rotation, Ccd, Bin, Extents, Reach}.
 
-record(#st{p = {PX, PY, PZ}, v = {VX, VY, VZ}}, false) ->
-    <<PX:64/float, PY:64/float, PZ:64/float, VX:64/float, VY:64/float, VZ:64/float>>;
-record(#st{p = {PX, PY, PZ}, v = {VX, VY, VZ}, q = {{QX, QY, QZ}, QW}, w = {WX, WY, WZ}}, true) ->
-    <<PX:64/float, PY:64/float, PZ:64/float, VX:64/float, VY:64/float, VZ:64/float,
+%% (a hot loop: the comparisons are written out rather than calls to
+%% min/2 and max/2, and the binary is appended to in place)
+pack([], _Disps, _Rot, Bin, _PX, _PY, _PZ, X0, Y0, Z0, X1, Y1, Z1, Reach) ->
+    {Bin, {X0, Y0, Z0, X1, Y1, Z1}, Reach};
+pack([#st{p = {X, Y, Z}} = St | Rest], Disps, Rot, Bin, PX, PY, PZ, X0, Y0, Z0, X1, Y1, Z1, Reach) ->
+    Step = case Reach of
+               undefined -> undefined;
+               _ -> abs(X - PX) + abs(Y - PY) + abs(Z - PZ)
+           end,
+    {Bin1, Disps1} = case Disps of
+                         undefined -> {record(Bin, St, Rot), undefined};
+                         [{DX, DY, DZ} | More] ->
+                             {<<(record(Bin, St, Rot))/binary, DX:64/float, DY:64/float, DZ:64/float>>, More}
+                     end,
+    pack(Rest, Disps1, Rot, Bin1, X, Y, Z,
+         if X < X0 -> X; true -> X0 end, if Y < Y0 -> Y; true -> Y0 end, if Z < Z0 -> Z; true -> Z0 end,
+         if X > X1 -> X; true -> X1 end, if Y > Y1 -> Y; true -> Y1 end, if Z > Z1 -> Z; true -> Z1 end,
+         if Step > Reach -> Step; true -> Reach end).    % (undefined stays undefined)
+
+record(Bin, #st{p = {PX, PY, PZ}, v = {VX, VY, VZ}}, false) ->
+    <<Bin/binary, PX:64/float, PY:64/float, PZ:64/float, VX:64/float, VY:64/float, VZ:64/float>>;
+record(Bin, #st{p = {PX, PY, PZ}, v = {VX, VY, VZ}, q = {{QX, QY, QZ}, QW}, w = {WX, WY, WZ}}, true) ->
+    <<Bin/binary, PX:64/float, PY:64/float, PZ:64/float, VX:64/float, VY:64/float, VZ:64/float,
       QX:64/float, QY:64/float, QZ:64/float, QW:64/float, WX:64/float, WY:64/float, WZ:64/float>>.
 
+%% The box of the packed positions.
+-spec extents(packed()) -> extents().
+extents({_, _, _, _, Extents, _}) -> Extents.
+
+%% An upper bound on how far the centre moves from one state to the next
+%% (the largest |dx| + |dy| + |dz|, which is at least the distance), for
+%% first_touch/6 to skip substeps at which two bodies cannot touch yet.
+-spec reach(packed()) -> float() | undefined.
+reach({_, _, _, _, _, Reach}) -> Reach.
+
 -spec count(packed()) -> non_neg_integer().
-count({Size, _, _, Bin}) -> byte_size(Bin) div Size.
+count({Size, _, _, Bin, _, _}) -> byte_size(Bin) div Size.
 
 %% Position at the I-th state (1-based).
 -spec position(packed(), pos_integer()) -> rw_vec:vec().
-position({Size, _, _, Bin}, I) ->
+position({Size, _, _, Bin, _, _}, I) ->
     Skip = (I - 1) * Size,
     <<_:Skip/binary, X:64/float, Y:64/float, Z:64/float, _/binary>> = Bin,
     {X, Y, Z}.
 
 -spec state(packed(), pos_integer()) -> #st{}.
-state({Size, Rotation, _, Bin}, I) ->
+state({Size, Rotation, _, Bin, _, _}, I) ->
     Skip = (I - 1) * Size,
     case Rotation of
         false ->
@@ -59,35 +96,31 @@ state({Size, Rotation, _, Bin}, I) ->
 
 %% Free displacement over the I-th substep (CCD only), else undefined.
 -spec displacement(packed(), pos_integer()) -> rw_vec:vec() | undefined.
-displacement({_, _, false, _}, _I) -> undefined;
-displacement({Size, _, true, Bin}, I) ->
+displacement({_, _, false, _, _, _}, _I) -> undefined;
+displacement({Size, _, true, Bin, _, _}, I) ->
     Skip = I * Size - 24,
     <<_:Skip/binary, X:64/float, Y:64/float, Z:64/float, _/binary>> = Bin,
     {X, Y, Z}.
 
-%% An upper bound on how far the centre moves from one state to the next
-%% (the largest |dx| + |dy| + |dz|, which is at least the distance), for
-%% first_touch/8 to skip substeps at which two bodies cannot touch yet.
--spec reach([#st{}]) -> float().
-reach([#st{p = {X, Y, Z}} | Rest]) -> reach(Rest, X, Y, Z, 0.0).
-
-reach([], _X, _Y, _Z, Max) -> Max;
-reach([#st{p = {X, Y, Z}} | Rest], PX, PY, PZ, Max) ->
-    Step = abs(X - PX) + abs(Y - PY) + abs(Z - PZ),
-    reach(Rest, X, Y, Z, if Step > Max -> Step; true -> Max end).
-
 %% The first offset K in 0..Left at which the positions IA + K of StsA and
 %% IB + K of StsB are closer than Sum (the test the narrowphase makes:
-%% distance squared below Sum squared), or none. Reach is ReachA + ReachB
-%% (reach/1): while the centres are D apart, for the next
+%% distance squared below Sum squared), or none. With Reach the sum of
+%% both reaches (reach/1): while the centres are D apart, for the next
 %% (D - Sum - Margin) / Reach substeps they stay more than Sum + Margin
 %% apart, and are not read. Margin is far above the rounding of D and of
 %% the multiples of Reach, so no touch is ever skipped; the offset found is
 %% the one a check of every substep finds.
--spec first_touch(packed(), pos_integer(), packed(), pos_integer(), non_neg_integer(), float(), float(), float()) ->
+-spec first_touch(packed(), pos_integer(), packed(), pos_integer(), non_neg_integer(), float()) ->
           non_neg_integer() | none.
-first_touch(StsA, IA, StsB, IB, Left, Sum, Margin, Reach) ->
-    touch(IA, IB, Left, StsA, StsB, Sum, Sum * Sum, Margin, Reach * (1.0 + 1.0e-9), 0).
+first_touch({_, _, _, _, _, ReachA} = StsA, IA, {_, _, _, _, _, ReachB} = StsB, IB, Left, Sum)
+  when ReachA =:= undefined; ReachB =:= undefined ->
+    touch(IA, IB, Left, StsA, StsB, Sum, Sum * Sum, 0.0, undefined, 0);
+first_touch(StsA, IA, StsB, IB, Left, Sum) ->
+    Margin = 1.0e-9 * (Sum + max(scale(extents(StsA)), scale(extents(StsB)))),
+    Reach = (reach(StsA) + reach(StsB)) * (1.0 + 1.0e-9),
+    touch(IA, IB, Left, StsA, StsB, Sum, Sum * Sum, Margin, Reach, 0).
+
+scale({X0, Y0, Z0, X1, Y1, Z1}) -> max(max(max(abs(X0), abs(Y0)), max(abs(Z0), abs(X1))), max(abs(Y1), abs(Z1))).
 
 touch(IA, IB, Left, StsA, StsB, Sum, Sum2, Margin, Reach, K) ->
     {XA, YA, ZA} = position(StsA, IA),
@@ -101,6 +134,7 @@ touch(IA, IB, Left, StsA, StsB, Sum, Sum2, Margin, Reach, K) ->
             Gap = math:sqrt(D2) - Sum - Margin,
             %% substeps 1..Skip from here are certainly apart
             Skip = if
+                       Reach =:= undefined -> 0;
                        Gap =< Reach -> 0;
                        Gap >= Left * Reach -> Left;
                        true -> trunc(Gap / Reach)

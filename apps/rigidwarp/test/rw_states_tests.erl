@@ -35,11 +35,11 @@ round_trip_test_() ->
 
 %% The point of packing: the states live off the process heap.
 off_heap_test() ->
-    {_, _, _, Bin} = rw_states:pack([state(K, false) || K <- lists:seq(1, 4)], undefined, false, false),
+    {_, _, _, Bin, _, _} = rw_states:pack([state(K, false) || K <- lists:seq(1, 4)], undefined, false, false),
     ?assert(byte_size(Bin) > 64),
     ?assert(erts_debug:flat_size(Bin) < 10).
 
-%% first_touch/8 skips substeps at which two bodies are too far apart to
+%% first_touch/6 skips substeps at which two bodies are too far apart to
 %% touch: it must find exactly the offset a check of every substep finds.
 %% Straight approaches at full reach are the tight case (one substep
 %% skipped too many misses the touch); random walks, bodies at rest, far
@@ -89,10 +89,7 @@ dist(A, B) -> rw_vec:len(rw_vec:sub(A, B)).
 packed(Path) -> rw_states:pack([#st{p = P, v = {0.0, 0.0, 0.0}} || P <- Path], undefined, false, false).
 
 first_touch({PathA, PathB, IA, IB, Left, Sum}) ->
-    Sts = fun(Path) -> [#st{p = P, v = {0.0, 0.0, 0.0}} || P <- Path] end,
-    Scale = lists:max([rw_vec:max_abs(P) || P <- PathA ++ PathB]),
-    rw_states:first_touch(packed(PathA), IA, packed(PathB), IB, Left, Sum, 1.0e-9 * (Sum + Scale),
-                          rw_states:reach(Sts(PathA)) + rw_states:reach(Sts(PathB))).
+    rw_states:first_touch(packed(PathA), IA, packed(PathB), IB, Left, Sum).
 
 brute_touch({PathA, PathB, IA, IB, Left, Sum}) ->
     Pairs = lists:zip(lists:nthtail(IA - 1, PathA), lists:nthtail(IB - 1, PathB)),
@@ -104,14 +101,43 @@ brute_touch({PathA, PathB, IA, IB, Left, Sum}) ->
         [K | _] -> K
     end.
 
-reach_bounds_every_move_test() ->
+%% Packing measures the positions' box and the largest move between two
+%% states, for every layout.
+extents_and_reach_test() ->
     _ = rand:seed(exsss, {1, 2, 3}),
     [begin
          Path = walk({1.0e9 * rand:uniform(), 0.0, -3.0}, rand:uniform(), 30),
-         Reach = rw_states:reach([#st{p = P} || P <- Path]),
+         States = [state(K, Rot) || K <- lists:seq(1, 30)],
+         Placed = [St#st{p = P} || {St, P} <- lists:zip(States, Path)],
+         Disps = case Ccd of true -> [vec(K) || K <- lists:seq(1, 30)]; false -> undefined end,
+         Packed = rw_states:pack(Placed, Disps, Rot, Ccd),
+         Reach = rw_states:reach(Packed),
          Moves = [dist(A, B) || {A, B} <- lists:zip(lists:droplast(Path), tl(Path))],
          ?assert(Reach >= lists:max(Moves)),
-         ?assert(Reach =< 1.8 * lists:max(Moves))
-     end || _ <- lists:seq(1, 200)],
-    ?assertEqual(0.0, rw_states:reach([#st{p = {1.0, 2.0, 3.0}}, #st{p = {1.0, 2.0, 3.0}}])),
-    ?assertEqual(0.0, rw_states:reach([#st{p = {1.0, 2.0, 3.0}}])).
+         ?assert(Reach =< 1.8 * lists:max(Moves)),
+         Coord = fun(I) -> [element(I, P) || P <- Path] end,
+         ?assertEqual({lists:min(Coord(1)), lists:min(Coord(2)), lists:min(Coord(3)),
+                       lists:max(Coord(1)), lists:max(Coord(2)), lists:max(Coord(3))}, rw_states:extents(Packed)),
+         [?assert(rw_states:state(Packed, I) =:= St) || {I, St} <- lists:zip(lists:seq(1, 30), Placed)]
+     end || _ <- lists:seq(1, 50), Rot <- [false, true], Ccd <- [false, true]],
+    Still = [#st{p = {1.0, 2.0, 3.0}, v = {0.0, 0.0, 0.0}}],
+    ?assertEqual(0.0, rw_states:reach(rw_states:pack(Still ++ Still, undefined, false, false))),
+    ?assertEqual(0.0, rw_states:reach(rw_states:pack(Still, undefined, false, false))),
+    ?assertEqual({1.0, 2.0, 3.0, 1.0, 2.0, 3.0}, rw_states:extents(rw_states:pack(Still, undefined, false, false))).
+
+%% A move between coordinates near the largest double overflows: packing
+%% still works, without a reach, and the scan then checks every substep.
+no_reach_near_the_largest_double_test() ->
+    Far = [#st{p = {X, 0.0, 0.0}, v = {0.0, 0.0, 0.0}} || X <- [1.7e308, -1.7e308, 1.7e308]],
+    Near = [#st{p = {0.0, Y, 0.0}, v = {0.0, 0.0, 0.0}} || Y <- [0.0, 5.0, 0.5]],
+    P = rw_states:pack(Far, undefined, false, false),
+    ?assertEqual(undefined, rw_states:reach(P)),
+    ?assertEqual({-1.7e308, 0.0, 0.0, 1.7e308, 0.0, 0.0}, rw_states:extents(P)),
+    [?assert(rw_states:state(P, I) =:= St) || {I, St} <- lists:zip([1, 2, 3], Far)],
+    Q = rw_states:pack(Near, undefined, false, false),
+    ?assertEqual(5.0, rw_states:reach(Q)),
+    ?assertEqual(0, rw_states:first_touch(Q, 1, Q, 1, 2, 1.0)),
+    AtRest = rw_states:pack(lists:duplicate(3, hd(Near)), undefined, false, false),
+    ?assertEqual(1, rw_states:first_touch(Q, 2, AtRest, 2, 1, 1.0)),
+    ?assertEqual(none, rw_states:first_touch(Q, 2, AtRest, 2, 0, 1.0)),
+    ?assertEqual(0, rw_states:first_touch(P, 2, P, 2, 1, 1.0)).
