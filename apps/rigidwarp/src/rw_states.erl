@@ -7,6 +7,9 @@
 %%
 %% Per substep: position, velocity, then (with rotation) orientation and
 %% angular velocity, then (with CCD) the free displacement of the substep.
+%% Packing also measures the box of the positions and the reach (the
+%% largest move between two states), which the TVHT's narrowphase uses to
+%% skip substeps at which two bodies are too far apart to touch.
 -module(rw_states).
 -include_lib("rw_physics/include/rw_physics.hrl").
 -export([pack/4, count/1, position/2, state/2, displacement/2, extents/1, reach/1, first_touch/6]).
@@ -51,7 +54,7 @@ pack([#st{p = {X, Y, Z}} = St | Rest], Disps, Rot, Bin, PX, PY, PZ, X0, Y0, Z0, 
     pack(Rest, Disps1, Rot, Bin1, X, Y, Z,
          if X < X0 -> X; true -> X0 end, if Y < Y0 -> Y; true -> Y0 end, if Z < Z0 -> Z; true -> Z0 end,
          if X > X1 -> X; true -> X1 end, if Y > Y1 -> Y; true -> Y1 end, if Z > Z1 -> Z; true -> Z1 end,
-         if Step > Reach -> Step; true -> Reach end).    % (undefined stays undefined)
+         if Reach =:= undefined -> undefined; Step > Reach -> Step; true -> Reach end).
 
 record(Bin, #st{p = {PX, PY, PZ}, v = {VX, VY, VZ}}, false) ->
     <<Bin/binary, PX:64/float, PY:64/float, PZ:64/float, VX:64/float, VY:64/float, VZ:64/float>>;
