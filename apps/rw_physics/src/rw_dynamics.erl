@@ -19,18 +19,19 @@
 
 %% An effect under its canonical key: {partner or fixture idx, feature}.
 -type keyed_effect() :: {{non_neg_integer(), non_neg_integer()}, rw_response:effect()}.
+-include("rw_vec_inline.hrl").
 
 -spec respond(#st{}, [rw_response:effect()]) ->
           {V :: rw_vec:vec(), W :: rw_vec:vec() | undefined, U :: rw_vec:vec()}.
 respond(#st{v = V, w = W}, []) -> {V, W, {0.0, 0.0, 0.0}};
 respond(#st{v = V, w = W}, Effects) ->
-    sum(Effects, V, W, rw_vec:zero()).
+    sum(Effects, V, W, vzero()).
 
 sum([], V, W, U) -> {V, W, U};
 sum([{Dv, undefined, Du} | Rest], V, W, U) ->
-    sum(Rest, rw_vec:add(V, Dv), W, rw_vec:add(U, Du));
+    sum(Rest, vadd(V, Dv), W, vadd(U, Du));
 sum([{Dv, Dw, Du} | Rest], V, W, U) ->
-    sum(Rest, rw_vec:add(V, Dv), rw_vec:add(W, Dw), rw_vec:add(U, Du)).
+    sum(Rest, vadd(V, Dv), vadd(W, Dw), vadd(U, Du)).
 
 %% Next pre-response state.
 -spec step(#model{}, #st{}, [rw_response:effect()]) -> #st{}.

@@ -6,6 +6,7 @@
 -export_type([integrator/0]).
 
 -type integrator() :: symplectic_euler | verlet | explicit_euler.
+-include("rw_vec_inline.hrl").
 
 -spec integrators() -> [integrator()].
 integrators() -> [symplectic_euler, verlet, explicit_euler].
@@ -17,13 +18,13 @@ advance(#model{dt = Dt, gravity = G, integrator = Int, rotation = Rot}, #st{p = 
     Vu = add_nonzero(V, U),
     {P1, V1} = case G of
                    undefined ->
-                       {rw_vec:madd(P, Vu, Dt), V};
+                       {vmadd(P, Vu, Dt), V};
                    _ ->
-                       V1g = rw_vec:madd(V, G, Dt),
+                       V1g = vmadd(V, G, Dt),
                        case Int of
-                           symplectic_euler -> {rw_vec:madd(P, add_nonzero(V1g, U), Dt), V1g};
-                           explicit_euler -> {rw_vec:madd(P, Vu, Dt), V1g};
-                           verlet -> {rw_vec:madd(rw_vec:madd(P, Vu, Dt), G, 0.5 * Dt * Dt), V1g}
+                           symplectic_euler -> {vmadd(P, add_nonzero(V1g, U), Dt), V1g};
+                           explicit_euler -> {vmadd(P, Vu, Dt), V1g};
+                           verlet -> {vmadd(vmadd(P, Vu, Dt), G, 0.5 * Dt * Dt), V1g}
                        end
                end,
     case Rot of
@@ -34,8 +35,8 @@ advance(#model{dt = Dt, gravity = G, integrator = Int, rotation = Rot}, #st{p = 
 %% How far a body moves over the substep if nothing touches it.
 -spec free_displacement(#model{}, #st{}) -> rw_vec:vec().
 free_displacement(M, #st{p = P, v = V, w = W} = St) ->
-    #st{p = P1} = advance(M, St, V, W, rw_vec:zero()),
-    rw_vec:sub(P1, P).
+    #st{p = P1} = advance(M, St, V, W, vzero()),
+    vsub(P1, P).
 
 add_nonzero(V, {0.0, 0.0, 0.0}) -> V;
-add_nonzero(V, U) -> rw_vec:add(V, U).
+add_nonzero(V, U) -> vadd(V, U).

@@ -13,18 +13,19 @@
 -type feature_contact() :: {Feature :: non_neg_integer(), #contact{}}.
 
 -define(FALLBACK_NORMAL, {0.0, 1.0, 0.0}).
+-include("rw_vec_inline.hrl").
 
 -spec sphere_sphere(rw_vec:vec(), float(), rw_vec:vec(), float()) -> #contact{} | none.
 sphere_sphere(PA, RA, PB, RB) ->
-    D = rw_vec:sub(PB, PA),
+    D = vsub(PB, PA),
     Sum = RA + RB,
-    L2 = rw_vec:len2(D),
+    L2 = vlen2(D),
     case L2 < Sum * Sum of
         false -> none;
         true ->
             L = math:sqrt(L2),
             N = case L > 0.0 of
-                    true -> rw_vec:scale(D, 1.0 / L);
+                    true -> vscale(D, 1.0 / L);
                     false -> ?FALLBACK_NORMAL
                 end,
             #contact{n = N, depth = Sum - L, toi = 0.0}
@@ -37,12 +38,12 @@ sphere_sphere(PA, RA, PB, RB) ->
 swept_sphere_sphere(PA, DA, RA, PB, DB, RB) ->
     case sphere_sphere(PA, RA, PB, RB) of
         none ->
-            X0 = rw_vec:sub(PB, PA),
-            DR = rw_vec:sub(DB, DA),
+            X0 = vsub(PB, PA),
+            DR = vsub(DB, DA),
             Sum = RA + RB,
-            A = rw_vec:len2(DR),
-            B = 2.0 * rw_vec:dot(X0, DR),
-            C = rw_vec:len2(X0) - Sum * Sum,
+            A = vlen2(DR),
+            B = 2.0 * vdot(X0, DR),
+            C = vlen2(X0) - Sum * Sum,
             Disc = B * B - 4.0 * A * C,
             case A > 0.0 andalso B < 0.0 andalso Disc >= 0.0 of
                 false -> none;
@@ -51,8 +52,8 @@ swept_sphere_sphere(PA, DA, RA, PB, DB, RB) ->
                     case S >= 0.0 andalso S =< 1.0 of
                         false -> none;
                         true ->
-                            N = unit_or_fallback(rw_vec:madd(X0, DR, S)),
-                            #contact{n = N, depth = Sum - math:sqrt(rw_vec:len2(X0)), toi = S}
+                            N = unit_or_fallback(vmadd(X0, DR, S)),
+                            #contact{n = N, depth = Sum - math:sqrt(vlen2(X0)), toi = S}
                     end
             end;
         Contact ->
@@ -61,9 +62,9 @@ swept_sphere_sphere(PA, DA, RA, PB, DB, RB) ->
 
 -spec sphere_fixture(rw_vec:vec(), float(), rw_shape:static_shape()) -> [feature_contact()].
 sphere_fixture(P, R, {plane, N, Off}) ->
-    Depth = R - (rw_vec:dot(N, P) - Off),
+    Depth = R - (vdot(N, P) - Off),
     case Depth > 0.0 of
-        true -> [{0, #contact{n = rw_vec:neg(N), depth = Depth}}];
+        true -> [{0, #contact{n = vneg(N), depth = Depth}}];
         false -> []
     end;
 sphere_fixture({PX, PY, PZ} = P, R, {box, {CX, CY, CZ} = C, {EX, EY, EZ} = E, hollow}) ->
@@ -137,18 +138,18 @@ swept_sphere_fixture(P, D, R, {cylinder, C, Axis, CR, H}) ->
 %%% Internals
 
 unit_or_fallback(V) ->
-    L = rw_vec:len(V),
+    L = vlen(V),
     case L > 0.0 of
-        true -> rw_vec:scale(V, 1.0 / L);
+        true -> vscale(V, 1.0 / L);
         false -> ?FALLBACK_NORMAL
     end.
 
 %% A solid half-space {x | N.x < Off}, the sphere on the outside moving by D.
 swept_half_space(F, P, D, R, N, Off) ->
-    Gap = rw_vec:dot(N, P) - Off - R,
-    Dn = rw_vec:dot(N, D),
+    Gap = vdot(N, P) - Off - R,
+    Dn = vdot(N, D),
     case Gap >= 0.0 andalso Dn < 0.0 andalso Gap + Dn =< 0.0 of
-        true -> [{F, #contact{n = rw_vec:neg(N), depth = -Gap, toi = Gap / -Dn}}];
+        true -> [{F, #contact{n = vneg(N), depth = -Gap, toi = Gap / -Dn}}];
         false -> []
     end.
 
@@ -165,9 +166,9 @@ wall_plane(F, C, E) ->
 
 overlapping_wall(F, P, R, C, E) ->
     {N, Off} = wall_plane(F, C, E),
-    Depth = R - (rw_vec:dot(N, P) - Off),
+    Depth = R - (vdot(N, P) - Off),
     case Depth > 0.0 of
-        true -> [{F, #contact{n = rw_vec:neg(N), depth = Depth}}];
+        true -> [{F, #contact{n = vneg(N), depth = Depth}}];
         false -> []
     end.
 
@@ -183,7 +184,7 @@ solid_box({PX, PY, PZ} = P, R, {CX, CY, CZ} = C, {EX, EY, EZ} = E) ->
     case Closest =:= P of
         true ->
             %% centre inside: leave through the nearest face
-            Rel = rw_vec:sub(P, C),
+            Rel = vsub(P, C),
             Slack = [{element(I + 1, E) - abs(element(I + 1, Rel)), I} || I <- [0, 1, 2]],
             {S, I} = lists:min(Slack),
             Sign = case element(I + 1, Rel) >= 0.0 of true -> -1.0; false -> 1.0 end,
@@ -193,12 +194,12 @@ solid_box({PX, PY, PZ} = P, R, {CX, CY, CZ} = C, {EX, EY, EZ} = E) ->
     end.
 
 point_contact(P, R, Closest) ->
-    D = rw_vec:sub(Closest, P),
-    L2 = rw_vec:len2(D),
+    D = vsub(Closest, P),
+    L2 = vlen2(D),
     case L2 < R * R of
         true ->
             L = math:sqrt(L2),
-            [{0, #contact{n = rw_vec:scale(D, 1.0 / L), depth = R - L}}];
+            [{0, #contact{n = vscale(D, 1.0 / L), depth = R - L}}];
         false ->
             []
     end.
@@ -206,10 +207,10 @@ point_contact(P, R, Closest) ->
 clamp(X, Lo, Hi) -> max(Lo, min(Hi, X)).
 
 cylinder(P, R, C, Axis, CR, H) ->
-    Rel = rw_vec:sub(P, C),
-    H0 = rw_vec:dot(Rel, Axis),
-    Radial = rw_vec:madd(Rel, Axis, -H0),
-    RL = rw_vec:len(Radial),
+    Rel = vsub(P, C),
+    H0 = vdot(Rel, Axis),
+    Radial = vmadd(Rel, Axis, -H0),
+    RL = vlen(Radial),
     case abs(H0) =< H andalso RL =< CR of
         true ->
             Side = CR - RL,
@@ -218,14 +219,14 @@ cylinder(P, R, C, Axis, CR, H) ->
                 true ->
                     %% on a tilted axis the radial offset of a centre on the axis is
                     %% rounding noise: treat it as on the axis
-                    N = case RL > 1.0e-12 * max(rw_vec:len(Rel), CR) of
-                            true -> rw_vec:scale(Radial, -1.0 / RL);
+                    N = case RL > 1.0e-12 * max(vlen(Rel), CR) of
+                            true -> vscale(Radial, -1.0 / RL);
                             false -> any_perpendicular(Axis)
                         end,
                     [{0, #contact{n = N, depth = R + Side}}];
                 false ->
                     Sign = case H0 >= 0.0 of true -> -1.0; false -> 1.0 end,
-                    [{0, #contact{n = rw_vec:scale(Axis, Sign), depth = R + Cap}}]
+                    [{0, #contact{n = vscale(Axis, Sign), depth = R + Cap}}]
             end;
         false when RL > (CR + R) * (1.0 + 1.0e-9); abs(H0) > (H + R) * (1.0 + 1.0e-9) ->
             %% farther than R from the side or beyond the caps (with a margin
@@ -234,22 +235,22 @@ cylinder(P, R, C, Axis, CR, H) ->
         false ->
             HC = clamp(H0, -H, H),
             RadialC = case RL > CR of
-                          true -> rw_vec:scale(Radial, CR / RL);
+                          true -> vscale(Radial, CR / RL);
                           false -> Radial
                       end,
-            Closest = rw_vec:add(rw_vec:madd(C, Axis, HC), RadialC),
+            Closest = vadd(vmadd(C, Axis, HC), RadialC),
             point_contact(P, R, Closest)
     end.
 
 any_perpendicular({AX, _, _} = Axis) ->
     Other = case abs(AX) < 0.9 of true -> {1.0, 0.0, 0.0}; false -> {0.0, 1.0, 0.0} end,
-    rw_vec:norm(rw_vec:cross(Axis, Other)).
+    rw_vec:norm(vcross(Axis, Other)).
 
 %% Segment P -> P+D against the box grown by R (slab test). Conservative at
 %% edges and corners, where the grown box is larger than the rounded one.
 swept_box(P, D, R, C, E) ->
-    Lo = rw_vec:sub(rw_vec:sub(C, E), {R, R, R}),
-    Hi = rw_vec:add(rw_vec:add(C, E), {R, R, R}),
+    Lo = vsub(vsub(C, E), {R, R, R}),
+    Hi = vadd(vadd(C, E), {R, R, R}),
     case slabs(0, P, D, Lo, Hi, 0.0, 1.0, none) of
         {TEnter, Axis} when TEnter > 0.0 ->
             Sign = case element(Axis + 1, D) > 0.0 of true -> 1.0; false -> -1.0 end,
@@ -289,19 +290,19 @@ slabs(I, P, D, Lo, Hi, TMin, TMax, Axis) ->
 
 slab_gap({PX, PY, PZ}, {CX, CY, CZ}, {EX, EY, EZ}, R) ->
     Closest = {clamp(PX, CX - EX, CX + EX), clamp(PY, CY - EY, CY + EY), clamp(PZ, CZ - EZ, CZ + EZ)},
-    rw_vec:len(rw_vec:sub(Closest, {PX, PY, PZ})) - R.
+    vlen(vsub(Closest, {PX, PY, PZ})) - R.
 
 %% Shapes without a closed-form swept test are sampled along the path at
 %% steps of a quarter radius (at most 256 samples).
 swept_by_samples(P, D, R, Test) ->
-    Len = rw_vec:len(D),
+    Len = vlen(D),
     N = min(256, max(1, ceil(Len / (0.25 * R)))),
     sample(1, N, P, D, Test).
 
 sample(I, N, _P, _D, _Test) when I > N -> [];
 sample(I, N, P, D, Test) ->
     S = I / N,
-    case Test(rw_vec:madd(P, D, S)) of
+    case Test(vmadd(P, D, S)) of
         [] -> sample(I + 1, N, P, D, Test);
         Hits -> [{F, C#contact{depth = 0.0, toi = S}} || {F, C} <- Hits]
     end.

@@ -5,20 +5,21 @@
 -export_type([quat/0]).
 
 -type quat() :: {rw_vec:vec(), float()}.
+-include("rw_vec_inline.hrl").
 
 -spec identity() -> quat().
 identity() -> {{0.0, 0.0, 0.0}, 1.0}.
 
 -spec mul(quat(), quat()) -> quat().
 mul({V1, W1}, {V2, W2}) ->
-    V = rw_vec:add(rw_vec:add(rw_vec:scale(V2, W1), rw_vec:scale(V1, W2)), rw_vec:cross(V1, V2)),
-    {V, W1 * W2 - rw_vec:dot(V1, V2)}.
+    V = vadd(vadd(vscale(V2, W1), vscale(V1, W2)), vcross(V1, V2)),
+    {V, W1 * W2 - vdot(V1, V2)}.
 
 -spec norm(quat()) -> quat().
 norm({V, W} = Q) ->
-    L = math:sqrt(rw_vec:len2(V) + W * W),
+    L = math:sqrt(vlen2(V) + W * W),
     case L > 0.0 of
-        true -> {rw_vec:scale(V, 1.0 / L), W / L};
+        true -> {vscale(V, 1.0 / L), W / L};
         false -> Q
     end.
 
@@ -29,10 +30,10 @@ integrate(Q, {0.0, 0.0, 0.0}, _Dt) -> Q;
 integrate({V, W} = Q, Omega, Dt) ->
     {DV, DW} = mul({Omega, 0.0}, Q),
     H = 0.5 * Dt,
-    norm({rw_vec:madd(V, DV, H), W + DW * H}).
+    norm({vmadd(V, DV, H), W + DW * H}).
 
 -spec rotate(quat(), rw_vec:vec()) -> rw_vec:vec().
 rotate({U, W}, V) ->
     %% v + 2w(u x v) + 2 u x (u x v)
-    UV = rw_vec:cross(U, V),
-    rw_vec:add(V, rw_vec:add(rw_vec:scale(UV, 2.0 * W), rw_vec:scale(rw_vec:cross(U, UV), 2.0))).
+    UV = vcross(U, V),
+    vadd(V, vadd(vscale(UV, 2.0 * W), vscale(vcross(U, UV), 2.0))).

@@ -15,6 +15,7 @@
 -type effect() :: {Dv :: rw_vec:vec(), Dw :: rw_vec:vec() | undefined, Du :: rw_vec:vec()}.
 
 -define(TINY, 1.0e-12).
+-include("rw_vec_inline.hrl").
 
 -spec pair(#model{}, #sphere{}, #st{}, #sphere{}, #st{}, #contact{}) -> {effect(), effect()}.
 pair(M, #sphere{inv_mass = ImA, inv_inertia = IiA, radius = RA}, #st{v = VA, w = WA},
@@ -31,12 +32,12 @@ pair(M, #sphere{inv_mass = ImA, inv_inertia = IiA, radius = RA}, #st{v = VA, w =
 -spec fixture(#model{}, #sphere{}, #st{}, #contact{}) -> effect().
 fixture(#model{rotation = Rot, gravity = G, dt = Dt} = M, #sphere{inv_mass = Im, inv_inertia = Ii, radius = R},
         #st{v = V, w = W}, Contact) ->
-    Still = case Rot of true -> rw_vec:zero(); false -> undefined end,
+    Still = case Rot of true -> vzero(); false -> undefined end,
     Vg = case G of
              undefined -> V;
-             _ -> rw_vec:madd(V, G, Dt)
+             _ -> vmadd(V, G, Dt)
          end,
-    {EffA, _} = impulse(M, Im, Ii, R, Vg, W, 0.0, 0.0, 0.0, rw_vec:zero(), Still, Contact),
+    {EffA, _} = impulse(M, Im, Ii, R, Vg, W, 0.0, 0.0, 0.0, vzero(), Still, Contact),
     EffA.
 
 impulse(#model{rotation = Rot, restitution = E, rest_speed = RestSpeed, friction = Mu,
@@ -44,12 +45,12 @@ impulse(#model{rotation = Rot, restitution = E, rest_speed = RestSpeed, friction
         ImA, IiA, RA, VA, WA, ImB, IiB, RB, VB, WB, #contact{n = N, depth = Depth, toi = Toi}) ->
     %% velocities of the two surface points in contact
     {VcA, VcB} = case Rot of
-                     true -> {rw_vec:add(VA, rw_vec:cross(WA, rw_vec:scale(N, RA))),
-                              rw_vec:add(VB, rw_vec:cross(WB, rw_vec:scale(N, -RB)))};
+                     true -> {vadd(VA, vcross(WA, vscale(N, RA))),
+                              vadd(VB, vcross(WB, vscale(N, -RB)))};
                      false -> {VA, VB}
                  end,
-    Vrel = rw_vec:sub(VcB, VcA),
-    Vn = rw_vec:dot(Vrel, N),
+    Vrel = vsub(VcB, VcA),
+    Vn = vdot(Vrel, N),
     K = ImA + ImB,
     Jn = case Vn < 0.0 of
              true ->
@@ -58,26 +59,26 @@ impulse(#model{rotation = Rot, restitution = E, rest_speed = RestSpeed, friction
              false -> 0.0
          end,
     %% impulse on A (B receives the opposite)
-    JA = friction(Mu, Rot, Jn, Vrel, Vn, N, K, RA * RA * IiA + RB * RB * IiB, rw_vec:scale(N, -Jn)),
-    DvA = rw_vec:scale(JA, ImA),
-    DvB = rw_vec:scale(JA, -ImB),
+    JA = friction(Mu, Rot, Jn, Vrel, Vn, N, K, RA * RA * IiA + RB * RB * IiB, vscale(N, -Jn)),
+    DvA = vscale(JA, ImA),
+    DvB = vscale(JA, -ImB),
     {DwA, DwB} = case Rot of
                      true ->
-                         Arm = rw_vec:cross(N, JA),
+                         Arm = vcross(N, JA),
                          %% r x J with r = RA n for A and r = -RB n, J = -JA for B
-                         {rw_vec:scale(Arm, RA * IiA), rw_vec:scale(Arm, RB * IiB)};
+                         {vscale(Arm, RA * IiA), vscale(Arm, RB * IiB)};
                      false -> {undefined, undefined}
                  end,
     Pen = Depth - Slop,
     {UA, UB} = case Pen > 0.0 of
                    true ->
                        Ub = Beta * Pen / Dt / K,
-                       {rw_vec:scale(N, -Ub * ImA), rw_vec:scale(N, Ub * ImB)};
-                   false -> {rw_vec:zero(), rw_vec:zero()}
+                       {vscale(N, -Ub * ImA), vscale(N, Ub * ImB)};
+                   false -> {vzero(), vzero()}
                end,
     %% a swept contact at fraction Toi: move with the old velocity until then
     {DuA, DuB} = case Toi > 0.0 of
-                     true -> {rw_vec:madd(UA, DvA, -Toi), rw_vec:madd(UB, DvB, -Toi)};
+                     true -> {vmadd(UA, DvA, -Toi), vmadd(UB, DvB, -Toi)};
                      false -> {UA, UB}
                  end,
     {{DvA, DwA, DuA}, {DvB, DwB, DuB}}.
@@ -86,14 +87,14 @@ impulse(#model{rotation = Rot, restitution = E, rest_speed = RestSpeed, friction
 friction(undefined, _Rot, _Jn, _Vrel, _Vn, _N, _K, _KRot, JNormal) -> JNormal;
 friction(_Mu, _Rot, Jn, _Vrel, _Vn, _N, _K, _KRot, JNormal) when Jn =< 0.0 -> JNormal;
 friction(Mu, Rot, Jn, Vrel, Vn, N, K, KRot, JNormal) ->
-    Vt = rw_vec:madd(Vrel, N, -Vn),
-    Lt = rw_vec:len(Vt),
+    Vt = vmadd(Vrel, N, -Vn),
+    Lt = vlen(Vt),
     case Lt > ?TINY of
         true ->
             Kt = case Rot of true -> K + KRot; false -> K end,
             Jt = min(Lt / Kt, Mu * Jn),
             %% A is dragged along the motion of B relative to A
-            rw_vec:madd(JNormal, Vt, Jt / Lt);
+            vmadd(JNormal, Vt, Jt / Lt);
         false ->
             JNormal
     end.
