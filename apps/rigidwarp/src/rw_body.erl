@@ -1,50 +1,84 @@
-%% One dynamic body of a Time Warp simulation (the paper's entity): a
-%% gen_statem with its own Local Virtual Time and the phases
+%% One dynamic body of a Time Warp simulation: a gen_statem with its own
+%% Local Virtual Time, the paper's entity. Beyond the paper, an entity can
+%% be a contact group: bodies in persistent contact (rw_regroup) are
+%% stepped together by one of their processes, the group's leader, which
+%% finds the contacts among them itself (rw_island) and meets everything
+%% else through the TVHT, events and antievents, as a body on its own does.
+%% The other members' processes wait meanwhile. Phases:
 %%   ready    wait for the start signal (every body exists);
 %%   step     integrate ahead to LVT_ub, write the states to the TVHT, stop at
 %%            the first substep with contacts (Alg. 2, 5, 6);
 %%   resolve  wait until the events sent for those contacts are acknowledged
 %%            (Alg. 3);
 %%   rollback wait until the antievents of a rollback are acknowledged
-%%            (Alg. 4, 7).
+%%            (Alg. 4, 7);
+%%   member   this body is stepped by its group's leader;
+%%   gather   at a regroup point, wait for the bodies of the group this
+%%            process is to lead.
+%%
+%% Groups change only at regroup points S (multiples of #sim.period) that
+%% GVT has reached: the GVT process plans them a period ahead, every entity
+%% involved stops at S, and once GVT is S (no rollback can reach S or
+%% earlier, and no message about a state at S or later is on its way) the
+%% old leaders send each member's state and post-response velocities at S
+%% to its new leader. No message ever has to follow a body to its new
+%% process.
 %%
 %% Timeline: written holds every write to the TVHT from GVT to LVT with
-%% its states packed in one off-heap binary (rw_states), so the history of
-%% pre-response states costs the body's garbage collector nothing; the
-%% writes cover every substep up to LVT without gaps. contacts holds, per substep, the contacts with
-%% other bodies known at that substep (own detections and received events),
-%% each as this body's half of the pair's effect. The post-response velocity
-%% at a substep is always recomputed from the pre-response state and the
-%% sorted set of all its contacts (rw_dynamics), never updated in place.
+%% each member's states packed in one off-heap binary (rw_states), so the
+%% history of pre-response states costs the garbage collector nothing; the
+%% writes cover every substep up to LVT without gaps. contacts holds, per
+%% substep, the contacts with bodies outside the entity known at that
+%% substep (own detections and received events), each as the member's half
+%% of the pair's effect. The post-response velocities at a substep are
+%% always recomputed from the pre-response states and the sorted set of all
+%% their contacts (rw_island), never updated in place.
 %%
 %% Every event and antievent is acknowledged as soon as it has been applied
-%% (after any rollback it causes has deleted its states), so no body ever
-%% waits on a body that waits on it: the only blocking waits are for acks,
-%% which always come, and for bucket locks, which are taken in bucket order
-%% (Lemma 1) and never held while waiting for a body.
+%% (after any rollback it causes has deleted its states), so no entity ever
+%% waits on an entity that waits on it: the only blocking waits are for
+%% acks, which always come, for bucket locks, which are taken in bucket
+%% order (Lemma 1) and never held while waiting for an entity, and at a
+%% regroup point for GVT, which every other entity can bring there.
 -module(rw_body).
 -behaviour(gen_statem).
 -include("rigidwarp.hrl").
 -export([start_link/3, describe/2, lvt/1]).
--export([callback_mode/0, init/1, ready/3, step/3, resolve/3, rollback/3]).
+-export([callback_mode/0, init/1, ready/3, step/3, resolve/3, rollback/3, member/3, gather/3]).
 -export_type([data/0, cid/0]).
 
 %% Contact id: {LVT, lower idx, higher idx, unique}.
 -type cid() :: {non_neg_integer(), non_neg_integer(), non_neg_integer(), reference()}.
+%% A contact with a body outside the entity at some substep: the member it
+%% touches, the partner, and the member's half of the pair's effect.
+-type known() :: {non_neg_integer(), non_neg_integer(), rw_response:effect()}.
+%% A member handed to its new leader: its state and post-response
+%% velocities at the regroup point.
+-type item() :: {#sphere{}, #st{}, {rw_vec:vec(), rw_vec:vec() | undefined, rw_vec:vec()}}.
 
 -record(d, {
     sim :: #sim{},
-    sphere :: #sphere{},
-    idx :: non_neg_integer(),
+    idx :: non_neg_integer(),                   % this process's own body
+    id :: binary(),
     model :: #model{},
+    fixtures :: [#fixture{}],
     dt :: pos_integer(),
     frame :: pos_integer(),                     % times in ticks (rw_scene)
     end_t :: non_neg_integer(),
     stride :: pos_integer(),
+    %% the entity: the bodies this process steps, ascending idx, and where
+    %% each is in that tuple (none while this body is in another's group)
+    spheres = {} :: tuple(),
+    idxs = [] :: [non_neg_integer()],
+    pos = #{} :: #{non_neg_integer() => pos_integer()},
+    island :: rw_island:island() | undefined,
     lvt = 0 :: non_neg_integer(),
     gvt = -1 :: integer(),                      % -1 until the first frame
-    start :: #st{},                             % the state at LVT 0, until written
-    contacts = #{} :: #{non_neg_integer() => #{cid() => {non_neg_integer(), rw_response:effect()}}},
+    start :: tuple() | undefined,               % the states at LVT 0, until written
+    %% a group formed at S starts from its members' post-response
+    %% velocities at S, computed by their old entities
+    base = none :: none | {non_neg_integer(), tuple()},
+    contacts = #{} :: #{non_neg_integer() => #{cid() => known()}},
     pend_ev = #{} :: #{cid() => true},
     pend_anti = #{} :: #{cid() => true},
     ghosts = #{} :: #{cid() => true},
@@ -55,22 +89,23 @@
     window = 1 :: pos_integer(),
     gc_at = 0 :: non_neg_integer(),            % next GVT at which to prune history
     wake_at = none :: none | integer(),        % the GVT rw_gvt will wake this body at
-    %% each write: its substeps T0..UpTo, where it went, and its states
-    %% (from T0 on, one per substep), newest first
+    regroup_at :: non_neg_integer(),           % the next regroup point not passed yet
+    %% each write: its substeps T0..UpTo, where it went, and each member's
+    %% states (from T0 on, one per substep), newest first
     written = [] :: [{non_neg_integer(), non_neg_integer(), [{non_neg_integer(), pid(), [rw_hash:cell()]}],
-                      rw_states:packed()}],
-    %% bodies touched recently, for the neighbour rule (see step/3)
-    partners = #{} :: #{non_neg_integer() => pid()},
-    %% the latest two substeps at which this body touched each partner
-    %% (the earlier one is none after a single touch)
+                      tuple()}],
+    %% the latest two substeps at which a member touched each outside body
+    %% (the earlier one is none after a single touch), for the neighbour rule
     touched = #{} :: #{non_neg_integer() => {non_neg_integer(), non_neg_integer() | none}},
-    %% bodies waiting for this one to reach an LVT: Pid => LVT
+    %% processes waiting for this one to reach an LVT: Pid => LVT
     watchers = #{} :: #{pid() => non_neg_integer()},
     watching = none :: none | {non_neg_integer(), non_neg_integer()},
     %% true while the body waits in step with no step event armed (for a
     %% partner to reach its LVT, or for GVT): a watch request cannot end
     %% that wait, so it is answered without stepping again
     idle = false :: boolean(),
+    %% gathering a group at S: the old leaders to hear from, what came
+    gathering = none :: none | {non_neg_integer(), [non_neg_integer()], [{non_neg_integer(), [item()]}]},
     delay = 0 :: non_neg_integer()              % test hook: max pause (ms) before TVHT work
 }).
 -opaque data() :: #d{}.
@@ -101,10 +136,10 @@ start_link(Sim, Sphere, St0) -> gen_statem:start_link(?MODULE, {Sim, Sphere, St0
 
 %% One line for the watchdog: phase, LVT and whom this body waits on.
 -spec describe(atom(), data()) -> iolist().
-describe(Phase, #d{idx = Idx, sphere = #sphere{id = Id}, lvt = Lvt, gvt = Gvt, pend_ev = PE, pend_anti = PA}) ->
+describe(Phase, #d{idx = Idx, id = Id, lvt = Lvt, gvt = Gvt, pend_ev = PE, pend_anti = PA, idxs = Idxs}) ->
     Whom = fun(M) -> [other(Idx, Cid) || Cid <- maps:keys(M)] end,
-    io_lib:format("body ~ts (idx ~b): ~p at LVT ~b (GVT ~b); awaiting event acks from ~w, "
-                  "antievent acks from ~w", [Id, Idx, Phase, Lvt, Gvt, Whom(PE), Whom(PA)]).
+    io_lib:format("body ~ts (idx ~b): ~p at LVT ~b (GVT ~b); ~b bodies; awaiting event acks from ~w, "
+                  "antievent acks from ~w", [Id, Idx, Phase, Lvt, Gvt, length(Idxs), Whom(PE), Whom(PA)]).
 
 -spec lvt(data()) -> non_neg_integer().
 lvt(#d{lvt = Lvt}) -> Lvt.
@@ -116,10 +151,21 @@ other(_Idx, {_, A, _, _}) -> A.
 callback_mode() -> state_functions.
 
 -spec init({#sim{}, #sphere{}, #st{}}) -> gen_statem:init_result(ready).
-init({#sim{scene = #scene{model = M, substep = Dt, frame = F, stride = Stride}, end_t = End} = Sim,
-      #sphere{idx = Idx} = Sphere, St0}) ->
-    {ok, ready, #d{sim = Sim, sphere = Sphere, idx = Idx, model = M, dt = Dt, frame = F,
-                   end_t = End, stride = Stride, start = St0}}.
+init({#sim{scene = #scene{model = M, substep = Dt, frame = F, stride = Stride, fixtures = Fixtures},
+           end_t = End, period = Period, owners = Owners} = Sim,
+      #sphere{idx = Idx, id = Id} = Sphere, St0}) ->
+    ets:insert(Owners, {Idx, self()}),
+    D = #d{sim = Sim, idx = Idx, id = Id, model = M, fixtures = Fixtures, dt = Dt, frame = F, end_t = End,
+           stride = Stride, start = {St0}, regroup_at = Period},
+    {ok, ready, members([Sphere], D)}.
+
+%% This process steps Spheres from now on.
+members(Spheres0, #d{model = M, fixtures = Fixtures} = D) ->
+    Spheres = lists:keysort(#sphere.idx, Spheres0),
+    Idxs = [I || #sphere{idx = I} <- Spheres],
+    D#d{spheres = list_to_tuple(Spheres), idxs = Idxs,
+        pos = maps:from_list(lists:zip(Idxs, lists:seq(1, length(Idxs)))),
+        island = rw_island:new(M, Spheres, Fixtures)}.
 
 %%% Phases
 
@@ -128,7 +174,7 @@ init({#sim{scene = #scene{model = M, substep = Dt, frame = F, stride = Stride}, 
 -spec ready(gen_statem:event_type(), term(), #d{}) -> gen_statem:event_handler_result(atom()).
 ready(info, go, #d{start = St0} = D) ->
     %% the initial state is written like any other, at LVT 0
-    settle(write_states(0, [St0], 0, D#d{lvt = 0}));
+    settle(write_states(0, [[St] || St <- tuple_to_list(St0)], 0, D#d{lvt = 0, start = undefined}));
 ready(info, {delay, Seed, MaxMs}, D) ->
     _ = rand:seed(exsss, Seed),
     {keep_state, D#d{delay = MaxMs}};
@@ -136,37 +182,52 @@ ready(_Type, _Msg, _D) ->
     {keep_state_and_data, [postpone]}.
 
 step(timeout, step, D0) ->
-    #d{lvt = Lvt, gvt = Gvt, stride = Stride, end_t = End, dt = Dt} = D = read_gvt(D0),
-    Last = min(max(Gvt, 0) + Stride, End),
-    %% A body that has passed the next sync point is not holding GVT back:
-    %% it waits until it can take at least min_step/1, since one long
-    %% step costs far less than many short ones.
-    MinStep = min_step(D),
-    case Lvt < Last andalso (Last - Lvt >= MinStep orelse Last =:= End orelse Lvt < next_sync(D)) of
-        true ->
-            %% Neighbour rule: a body in persistent contact with another
-            %% one (neighbour_limit/1) goes at most one substep past it. Beyond that it
-            %% could not see their next contact, and would be rolled back
-            %% when the other body finds it. The body with the lowest LVT is
-            %% never held, so some body can always move.
-            %% A partner publishes its LVT only after sending the events of
-            %% its write, so the events behind the limit read here are in
-            %% our mailbox already: take them in before stepping.
-            Limit = neighbour_limit(D),
-            case drain(D, false) of
-                {true, D1} ->
-                    settle(D1);
-                {false, _} ->
-                    case Limit of
-                        {L, PIdx, PPid} when L =< Lvt ->
-                            {keep_state, (watch(PIdx, PPid, commit_lvt(D)))#d{idle = true}};
-                        _ ->
-                            To = case Limit of none -> Last; {L, _, _} -> min(Last, L) end,
-                            settle(advance(Lvt, min(To, Lvt + D#d.window * Dt), D#d{watching = none}))
-                    end
-            end;
-        false -> {keep_state, (wake_me(commit_lvt(D)))#d{idle = true}}
+    #d{lvt = Lvt, gvt = Gvt, stride = Stride, end_t = End, dt = Dt} = D1 = read_gvt(D0),
+    case regroup(min(max(Gvt, 0) + Stride, End), D1) of
+        {handover, Move, D} ->
+            handover(Move, D);
+        {Last, Capped, D} ->
+            %% A body that has passed the next sync point is not holding GVT
+            %% back: it waits until it can take at least min_step/1, since
+            %% one long step costs far less than many short ones.
+            MinStep = min_step(D),
+            case Lvt < Last andalso (Capped orelse Last - Lvt >= MinStep orelse Last =:= End
+                                     orelse Lvt < next_sync(D)) of
+                true ->
+                    %% Neighbour rule: an entity in persistent contact with
+                    %% another one (neighbour_limit/1) goes at most one
+                    %% substep past it. Beyond that it could not see their
+                    %% next contact, and would be rolled back when the other
+                    %% one finds it. The entity with the lowest LVT is never
+                    %% held, so some entity can always move.
+                    %% A partner publishes its LVT only after sending the
+                    %% events of its write, so the events behind the limit
+                    %% read here are in our mailbox already: take them in
+                    %% before stepping.
+                    Limit = neighbour_limit(D),
+                    case drain(D, false) of
+                        {true, D2} ->
+                            settle(D2);
+                        {false, _} ->
+                            case Limit of
+                                {L, PIdx} when L =< Lvt ->
+                                    {keep_state, (watch(PIdx, commit_lvt(D)))#d{idle = true}};
+                                _ ->
+                                    To = case Limit of none -> Last; {L, _} -> min(Last, L) end,
+                                    settle(advance(Lvt, min(To, Lvt + D#d.window * Dt), D#d{watching = none}))
+                            end
+                    end;
+                false ->
+                    {keep_state, (wait(Capped, commit_lvt(D)))#d{idle = true}}
+            end
     end;
+step(info, {bundle, S, _, _}, #d{lvt = S, regroup_at = S, sim = #sim{plans = Plans}, idx = Idx} = D0) ->
+    %% a new member arrives before this entity has seen GVT reach the
+    %% regroup point: hand over now, and take the bundle in in gather
+    D = read_gvt(D0),
+    [{_, Move}] = ets:lookup(Plans, {S, Idx}),
+    {next_state, gather, D1} = handover(Move, D),
+    {next_state, gather, D1, [postpone]};
 step(Type, Msg, D) ->
     common(Type, Msg, D).
 
@@ -176,9 +237,9 @@ resolve(Type, Msg, D) -> common(Type, Msg, D).
 -spec rollback(gen_statem:event_type(), term(), #d{}) -> gen_statem:event_handler_result(atom()).
 rollback(Type, Msg, D) -> common(Type, Msg, D).
 
-%% Messages every phase handles; the phase that follows is derived from
-%% what is still awaited.
-common(info, {event, _, _, _, _, _} = Msg, D) -> settle(on_message(Msg, D));
+%% Messages every phase of an entity handles; the phase that follows is
+%% derived from what is still awaited.
+common(info, {event, _, _, _, _, _, _} = Msg, D) -> settle(on_message(Msg, D));
 common(info, {antievent, _, _, _} = Msg, D) -> settle(on_message(Msg, D));
 common(info, {ack, _, _} = Msg, D) -> settle(on_message(Msg, D));
 common(info, {gvt, _} = Msg, D) -> settle(?TIMED(D, ?ST_RED_GVT, on_message(Msg, D)));
@@ -187,11 +248,53 @@ common(info, {watch, _, _} = Msg, D) -> settle(on_message(Msg, D));
 common(info, {reached, _, _} = Msg, D) -> settle(on_message(Msg, D));
 common(timeout, step, D) ->
     settle(D);
+common(info, {bundle, _, _, _} = Msg, D) ->
+    %% only an entity at the regroup point, with nothing awaited, hands over
+    unexpected(entity, info, Msg, D);
 common(Type, Msg, D) ->
     logger:warning("rw_body ~p: unexpected ~p ~p", [D#d.idx, Type, Msg]),
     keep_state_and_data.
 
-on_message({event, Cid, T, FromIdx, From, Effect}, D) -> on_event(Cid, T, FromIdx, From, Effect, D);
+%% This body is stepped by another one, its group's leader. At a regroup
+%% point it may be made a leader: the first member handed to it says so.
+-spec member(gen_statem:event_type(), term(), #d{}) -> gen_statem:event_handler_result(atom()).
+member(info, {bundle, S, _, _}, #d{sim = #sim{plans = Plans}, idx = Idx} = D) ->
+    [{_, #{gather := From}}] = ets:lookup(Plans, {S, Idx}),
+    {next_state, gather, D#d{gathering = {S, From, []}, lvt = S, gvt = S}, [postpone]};
+member(info, {watch, Pid, _}, #d{idx = Idx, lvt = Lvt}) ->
+    %% its leader holds its LVT: let the watcher look again
+    Pid ! {reached, Idx, Lvt},
+    keep_state_and_data;
+member(info, Msg, _D) when element(1, Msg) =:= gvt; element(1, Msg) =:= reached ->
+    keep_state_and_data;
+member(Type, Msg, D) ->
+    unexpected(member, Type, Msg, D).
+
+%% Collecting the members of the group this process leads from the regroup
+%% point on.
+-spec gather(gen_statem:event_type(), term(), #d{}) -> gen_statem:event_handler_result(atom()).
+gather(info, {bundle, S, From, Items}, #d{gathering = {S, Expect, Got0}} = D) ->
+    Got = [{From, Items} | Got0],
+    case length(Got) =:= length(Expect) of
+        true -> settle(form(S, lists:append([I || {_, I} <- Got]), D));
+        false -> {keep_state, D#d{gathering = {S, Expect, Got}}}
+    end;
+gather(info, {watch, Pid, T}, D) ->
+    {keep_state, on_watch(Pid, T, D)};
+gather(info, Msg, _D) when element(1, Msg) =:= gvt; element(1, Msg) =:= reached ->
+    keep_state_and_data;
+gather(Type, Msg, D) ->
+    unexpected(gather, Type, Msg, D).
+
+%% Nothing but the messages above can reach a member or a gathering leader
+%% (no state of its bodies after the regroup point exists anywhere yet): a
+%% protocol error, which must not pass unseen.
+-spec unexpected(atom(), gen_statem:event_type(), term(), #d{}) -> no_return().
+unexpected(Phase, Type, Msg, #d{idx = Idx}) ->
+    logger:error("rw_body ~p: ~p ~p while in ~p", [Idx, Type, Msg, Phase]),
+    exit({unexpected, Phase, Msg}).
+
+on_message({event, Cid, T, FromIdx, From, ToIdx, Effect}, D) -> on_event(Cid, T, FromIdx, From, ToIdx, Effect, D);
 on_message({antievent, Cid, T, From}, D) -> on_antievent(Cid, T, From, D);
 on_message({ack, event, Cid}, #d{pend_ev = P} = D) -> D#d{pend_ev = maps:remove(Cid, P)};
 on_message({ack, anti, Cid}, #d{pend_anti = P} = D) -> D#d{pend_anti = maps:remove(Cid, P)};
@@ -203,7 +306,7 @@ on_message({reached, _Idx, _T}, D) -> D#d{watching = none}.
 %% step would otherwise run before them); true if there was any.
 drain(D, Any) ->
     receive
-        {event, _, _, _, _, _} = Msg -> drain(on_message(Msg, D), true);
+        {event, _, _, _, _, _, _} = Msg -> drain(on_message(Msg, D), true);
         {antievent, _, _, _} = Msg -> drain(on_message(Msg, D), true);
         {ack, _, _} = Msg -> drain(on_message(Msg, D), true);
         {gvt, _} = Msg -> drain(on_message(Msg, D), true);
@@ -216,28 +319,91 @@ settle(#d{pend_anti = PA} = D) when map_size(PA) > 0 -> {next_state, rollback, D
 settle(#d{pend_ev = PE} = D) when map_size(PE) > 0 -> {next_state, resolve, D#d{idle = false}};
 settle(D) -> {next_state, step, D#d{idle = false}, [{timeout, 0, step}]}.
 
+%%% Contact groups
+
+%% How far the entity may step (LVT_ub, Last) and whether that is capped at
+%% a regroup point S where its group changes; there, once GVT is S, it
+%% hands over. Every regroup point before Last has been planned (the GVT
+%% process plans S when GVT reaches S - period, and Last > S needs GVT
+%% past that).
+regroup(Last, #d{sim = #sim{period = 0}} = D) -> {Last, false, D};
+regroup(Last, #d{regroup_at = S} = D) when S >= Last -> {Last, false, D};
+regroup(Last, #d{regroup_at = S, lvt = Lvt, gvt = G, sim = #sim{period = P, plans = Plans}, idx = Idx} = D) ->
+    case ets:lookup(Plans, {S, Idx}) of
+        [{_, #{send := _} = Move}] when Lvt =:= S, G >= S -> {handover, Move, D};
+        [{_, #{send := _}}] -> {S, true, D};
+        _ -> regroup(Last, D#d{regroup_at = S + P})
+    end.
+
+%% At the regroup point S, with GVT at S: send every member's state and
+%% post-response velocities at S to its new leader, then lead a new group
+%% (gather) or wait as a member.
+handover(#{send := Sends} = Move, #d{lvt = S, idx = Idx, spheres = Spheres, pos = Pos, watchers = W} = D0) ->
+    States = state_at(S, D0),
+    {Posts, D} = posts(S, States, D0),
+    ByLeader = lists:foldl(fun({M, _Leader, Pid}, Acc) ->
+                                   K = maps:get(M, Pos),
+                                   Item = {element(K, Spheres), element(K, States), element(K, Posts)},
+                                   maps:update_with(Pid, fun(L) -> [Item | L] end, [Item], Acc)
+                           end, #{}, Sends),
+    _ = [Pid ! {bundle, S, Idx, Items} || {Pid, Items} <- maps:to_list(ByLeader)],
+    %% whoever waited for this entity looks again (its bodies move on)
+    _ = [Pid ! {reached, Idx, S} || Pid <- maps:keys(W)],
+    Left = D#d{spheres = {}, idxs = [], pos = #{}, island = undefined, base = none, contacts = #{},
+               ghosts = #{}, committed = [], written = [], touched = #{}, watchers = #{}, watching = none,
+               idle = false, wake_at = none},
+    case Move of
+        #{gather := From} -> {next_state, gather, Left#d{gathering = {S, From, []}}};
+        _ -> {next_state, member, Left}
+    end.
+
+%% The group this process leads from S on, from its members' states and
+%% post-response velocities at S.
+form(S, Items, #d{model = M, sim = #sim{owners = Owners, period = P}} = D0) ->
+    Sorted = lists:keysort(1, [{I, Item} || {#sphere{idx = I}, _, _} = Item <- Items]),
+    D1 = members([Sp || {_, {Sp, _, _}} <- Sorted], D0),
+    Packed = list_to_tuple([rw_states:pack([St], undefined, M#model.rotation, false) || {_, {_, St, _}} <- Sorted]),
+    ets:insert(Owners, [{I, self()} || {I, _} <- Sorted]),
+    publish_lvt(D1#d{lvt = S, gvt = S, gc_at = S + D1#d.stride, regroup_at = S + P,
+                     base = {S, list_to_tuple([Post || {_, {_, _, Post}} <- Sorted])},
+                     written = [{S, S, [], Packed}], window = 1, gathering = none}).
+
+%% The members' post-response velocities at T (GVT =< T =< LVT).
+posts(T, _States, #d{base = {T, Posts}} = D) -> {Posts, D};
+posts(T, States, #d{island = I} = D) ->
+    {Posts, I1} = rw_island:posts(I, States, external(T, D)),
+    {Posts, D#d{island = I1}}.
+
+%% Effects of the contacts with outside bodies at T, by member.
+external(_T, #d{contacts = Contacts}) when map_size(Contacts) =:= 0 -> [];
+external(T, #d{contacts = Contacts}) ->
+    case Contacts of
+        #{T := AtT} -> [{Member, {{Partner, 0}, E}} || {Member, Partner, E} <- maps:values(AtT)];
+        _ -> []
+    end.
+
 %%% Neighbour rule
 
 -define(RECENT_SUBSTEPS, 8).
 
-%% {Limit, Idx, Pid}: how far the slowest body in persistent contact lets
-%% this one go (its LVT plus one substep), or none. A partner counts as in
-%% persistent contact for a few substeps after its second touch within as
-%% many substeps: a single touch is most often a bounce, after which the two
-%% fly apart, and holding both bodies to one substep per write for the next
-%% few substeps made Bouncing 500 write 2.6 times as often (most writes one
+%% {Limit, Idx}: how far the slowest outside body in persistent contact
+%% lets this entity go (its LVT plus one substep), or none. A partner counts
+%% as in persistent contact for a few substeps after its second touch within
+%% as many substeps: a single touch is most often a bounce, after which the
+%% two fly apart, and holding both to one substep per write for the next few
+%% substeps made Bouncing 500 write 2.6 times as often (most writes one
 %% substep long) for no fewer rollbacks. Touches are remembered by partner
-%% (the latest two substeps); one undone by a rollback may hold the body
+%% (the latest two substeps); one undone by a rollback may hold the entity
 %% back a little longer than needed, never less.
 neighbour_limit(#d{touched = Touched}) when map_size(Touched) =:= 0 -> none;
-neighbour_limit(#d{lvt = Lvt, dt = Dt, touched = Touched, partners = Partners, sim = #sim{lvts = Lvts}}) ->
+neighbour_limit(#d{lvt = Lvt, dt = Dt, touched = Touched, sim = #sim{lvts = Lvts}}) ->
     Since = Lvt - ?RECENT_SUBSTEPS * Dt,
     maps:fold(fun(PIdx, {T, Before}, Best) when T > Since, is_integer(Before),
                                                 Before >= T - ?RECENT_SUBSTEPS * Dt ->
                       L = atomics:get(Lvts, rw_timewarp:lvt_slot(PIdx)) + Dt,
                       case Best of
-                          {BL, BIdx, _} when BL < L; BL =:= L, BIdx < PIdx -> Best;
-                          _ -> {L, PIdx, maps:get(PIdx, Partners)}
+                          {BL, BIdx} when BL < L; BL =:= L, BIdx < PIdx -> Best;
+                          _ -> {L, PIdx}
                       end;
                  (_, _, Best) -> Best
               end, none, Touched).
@@ -246,10 +412,12 @@ neighbour_limit(#d{lvt = Lvt, dt = Dt, touched = Touched, partners = Partners, s
 forget_touches(Since, #d{touched = Touched} = D) ->
     D#d{touched = maps:filter(fun(_, {T, _}) -> T > Since end, Touched)}.
 
-%% Ask PIdx to tell us when it reaches our LVT (once per wait).
-watch(PIdx, _PPid, #d{lvt = Lvt, watching = {PIdx, Lvt}} = D) -> D;
-watch(PIdx, PPid, #d{lvt = Lvt} = D) ->
-    send(PPid, {watch, self(), Lvt}, D),
+%% Ask the entity stepping body PIdx to tell us when it reaches our LVT
+%% (once per wait).
+watch(PIdx, #d{lvt = Lvt, watching = {PIdx, Lvt}} = D) -> D;
+watch(PIdx, #d{lvt = Lvt, sim = #sim{owners = Owners}} = D) ->
+    [{_, Pid}] = ets:lookup(Owners, PIdx),
+    send(Pid, {watch, self(), Lvt}, D),
     D#d{watching = {PIdx, Lvt}}.
 
 on_watch(Pid, T, #d{lvt = Lvt, idx = Idx} = D) when Lvt >= T ->
@@ -258,9 +426,10 @@ on_watch(Pid, T, #d{lvt = Lvt, idx = Idx} = D) when Lvt >= T ->
 on_watch(Pid, T, #d{watchers = W} = D) ->
     D#d{watchers = W#{Pid => T}}.
 
-%% Publish the LVT; wake the bodies waiting for it.
-publish_lvt(#d{sim = #sim{lvts = Lvts}, idx = Idx, lvt = Lvt, watchers = W} = D) ->
-    atomics:put(Lvts, rw_timewarp:lvt_slot(Idx), Lvt),
+%% Publish the LVT (at every member's slot); wake the processes waiting
+%% for it.
+publish_lvt(#d{sim = #sim{lvts = Lvts}, idx = Idx, idxs = Idxs, lvt = Lvt, watchers = W} = D) ->
+    _ = [atomics:put(Lvts, rw_timewarp:lvt_slot(I), Lvt) || I <- Idxs],
     case map_size(W) of
         0 -> D;
         _ ->
@@ -273,14 +442,14 @@ publish_lvt(#d{sim = #sim{lvts = Lvts}, idx = Idx, lvt = Lvt, watchers = W} = D)
 
 %%% Step: integrate from LVT to Last assuming no new contacts, write
 
-advance(Lvt, Last, D) ->
-    {Passed, States} = ?TIMED(D, ?ST_RED_INTEGRATE, chain(Lvt, state_at(Lvt, D), Last, D, [], [])),
-    counters:add(D#d.sim#sim.stats, ?ST_COMPUTED, length(States)),
+advance(Lvt, Last, #d{spheres = Spheres, island = Island0} = D) ->
+    {Passed, States, Island} = ?TIMED(D, ?ST_RED_INTEGRATE, chain(Lvt, state_at(Lvt, D), Last, D, Island0)),
+    counters:add(D#d.sim#sim.stats, ?ST_COMPUTED, length(hd(States)) * tuple_size(Spheres)),
     counters:add(D#d.sim#sim.stats, ?ST_STEPS, 1),
-    D1 = write_states(Lvt + D#d.dt, States, Last, D),
+    D1 = write_states(Lvt + D#d.dt, States, Last, D#d{island = Island}),
     %% commit every frame time this step moved past
     #d{lvt = NewLvt} = D1,
-    ?TIMED(D, ?ST_RED_GVT, lists:foldl(fun({T, St, Post}, Acc) when T < NewLvt -> commit(T, St, Post, Acc);
+    ?TIMED(D, ?ST_RED_GVT, lists:foldl(fun({T, Sts, Posts}, Acc) when T < NewLvt -> commit(T, Sts, Posts, Acc);
                                          (_, Acc) -> Acc
                                       end, D1, Passed)).
 
@@ -290,38 +459,73 @@ timed(Stats, Stage, Fun) ->
     counters:add(Stats, Stage, reductions() - T0),
     Result.
 
-%% The states after T up to Last (one per substep), and the post-response
-%% at each sync point passed on the way (to commit).
-chain(T, _St, Last, _D, Passed, States) when T >= Last ->
-    {lists:reverse(Passed), lists:reverse(States)};
-chain(T, St, Last, #d{model = M, dt = Dt, frame = F, stride = S, end_t = End} = D, Passed, States) ->
-    Post = {V, W, U} = rw_dynamics:respond(St, effects(T, St, D)),
+%% The members' states after T up to Last (one list per member, one state
+%% per substep), the post-response velocities at each sync point passed on
+%% the way (to commit), and the island with its neighbour list.
+chain(T, {St}, Last, #d{spheres = {S}} = D, Island) ->
+    {Passed, States} = alone(T, St, Last, S, D, [], []),
+    {Passed, [States], Island};
+chain(T, States, Last, D, Island0) ->
+    {Passed, Tuples, Island} = chain(T, States, Last, D, Island0, [], []),
+    {Passed, [[element(K, Sts) || Sts <- Tuples] || K <- lists:seq(1, tuple_size(States))], Island}.
+
+%% A body on its own, the hot path of free flight.
+alone(T, _St, Last, _S, _D, Passed, Acc) when T >= Last ->
+    {lists:reverse(Passed), lists:reverse(Acc)};
+alone(T, St, Last, S, #d{model = M, dt = Dt, fixtures = Fixtures} = D, Passed, Acc) ->
+    {V, W, U} = Post = case D#d.base of
+                           {T, {Base}} -> Base;
+                           _ -> rw_island:alone(M, S, St, Fixtures, external(T, D))
+                       end,
     Next = rw_integrate:advance(M, St, V, W, U),
-    Passed1 = case T rem F =:= 0 orelse T rem S =:= 0 orelse T =:= End of
-                  true -> [{T, St, Post} | Passed];
+    Passed1 = case is_sync(T, D) of
+                  true -> [{T, {St}, {Post}} | Passed];
                   false -> Passed
               end,
-    chain(T + Dt, Next, Last, D, Passed1, [Next | States]).
+    alone(T + Dt, Next, Last, S, D, Passed1, [Next | Acc]).
 
-%% Effects of every known contact at T, in canonical order of partner.
-effects(T, #st{} = St, #d{model = M, sphere = S, contacts = Contacts, sim = Sim}) ->
-    Bodies = case Contacts of
-                 #{T := AtT} -> [{{PIdx, 0}, E} || {PIdx, E} <- maps:values(AtT)];
-                 _ -> []
+chain(T, _States, Last, _D, Island, Passed, Acc) when T >= Last ->
+    {lists:reverse(Passed), lists:reverse(Acc), Island};
+chain(T, States, Last, #d{model = M, dt = Dt} = D, Island, Passed, Acc) ->
+    {Posts, Next, Island1} =
+        case D#d.base of
+            {T, Base} ->
+                {Base, list_to_tuple([begin
+                                          {V, W, U} = element(K, Base),
+                                          rw_integrate:advance(M, element(K, States), V, W, U)
+                                      end || K <- lists:seq(1, tuple_size(States))]), Island};
+            _ ->
+                rw_island:step(Island, States, external(T, D))
+        end,
+    Passed1 = case is_sync(T, D) of
+                  true -> [{T, States, Posts} | Passed];
+                  false -> Passed
+              end,
+    chain(T + Dt, Next, Last, D, Island1, Passed1, [Next | Acc]).
+
+%% Write States (per member, its states per substep from T0 on) to the
+%% TVHT under lock; stop at the first substep with contacts and send the
+%% events for them. LVT becomes that substep, or Last.
+write_states(T0, States, Last, #d{sim = Sim, written = Written} = D) ->
+    Members = [member_write(K, T0, Sts, D) || {K, Sts} <- lists:zip(lists:seq(1, length(States)), States)],
+    Packed = list_to_tuple([P || {_, _, P} <- Members]),
+    %% hashing the states to cells and buckets is collision-checking work
+    Plan = ?TIMED(D, ?ST_RED_TVHT, plan([{Payload, cell_spans(T0, Spans, D)} || {Payload, Spans, _} <- Members], Sim)),
+    maybe_delay(D),
+    {UpTo, Hits, Ids} = probe_commit(Plan, Last),
+    Where = [{B, Pid, Cells} || {B, Pid, Cells, _} <- Plan],
+    MaxWindow = max(1, D#d.stride div D#d.dt),
+    Window = case Hits of
+                 [] -> min(MaxWindow, 2 * D#d.window);
+                 _ -> min(MaxWindow, max(1, 2 * ((UpTo - T0) div D#d.dt + 1)))
              end,
-    Fixed = rw_dynamics:fixture_effects(M, S, St, Sim#sim.scene#scene.fixtures),
-    %% (a hot path: matching both lists saves a ++ per substep, 1-2 % of Parallel 500)
-    case {Bodies, Fixed} of
-        {[], []} -> [];
-        {[{_, E}], []} -> [E];
-        {[], [{_, E}]} -> [E];
-        _ -> [E || {_, E} <- lists:keysort(1, Bodies ++ Fixed)]
-    end.
+    D1 = D#d{lvt = UpTo, written = [{T0, UpTo, Where, Packed} | Written], window = Window},
+    publish_lvt(send_events(UpTo, Hits, Ids, D1)).
 
-%% Write States (one per substep from T0 on) to the TVHT under lock;
-%% stop at the first substep with contacts and send the events for them.
-%% LVT becomes that substep, or Last.
-write_states(T0, States, Last, #d{idx = Idx, sphere = S, model = M, sim = Sim, written = Written} = D) ->
+%% One member's part of a write: its payload for the buckets, what
+%% cell_spans/3 needs, and its packed states.
+member_write(K, T0, States, #d{spheres = Spheres, model = M}) ->
+    #sphere{idx = Idx, radius = R} = S = element(K, Spheres),
     DispList = case M#model.ccd of
                    true -> [rw_integrate:free_displacement(M, St) || St <- States];
                    false -> undefined
@@ -334,44 +538,35 @@ write_states(T0, States, Last, #d{idx = Idx, sphere = S, model = M, sim = Sim, w
                                #st{p = {X, Y, Z}} = hd(States),
                                {DispTuple, extend(1, list_to_tuple(States), DispTuple, X, Y, Z, X, Y, Z)}
                        end,
-    Payload = {Idx, self(), S, T0, Packed, bounds(Extents, S#sphere.radius)},
-    %% hashing the states to cells and buckets is collision-checking work
-    Plan = ?TIMED(D, ?ST_RED_TVHT, plan(cell_spans(T0, States, Disps, Extents, D), Sim)),
-    maybe_delay(D),
-    {UpTo, Hits, Ids} = probe_commit(Plan, Payload, Last, Idx),
-    Where = [{B, Pid, Cells} || {B, Pid, Cells, _} <- Plan],
-    MaxWindow = max(1, D#d.stride div D#d.dt),
-    Window = case Hits of
-                 [] -> min(MaxWindow, 2 * D#d.window);
-                 _ -> min(MaxWindow, max(1, 2 * ((UpTo - T0) div D#d.dt + 1)))
-             end,
-    D1 = D#d{lvt = UpTo, written = [{T0, UpTo, Where, Packed} | Written], window = Window},
-    publish_lvt(send_events(UpTo, Hits, Ids, D1)).
+    {{Idx, self(), S, T0, Packed, bounds(Extents, R)}, {States, Disps, Extents, R}, Packed}.
 
 %% Probe the buckets of the plan in order under their locks, store the
 %% states up to the first LVT with contacts (or Last), and unlock:
-%% {UpTo, Hits by partner idx, contact ids by partner idx}.
-probe_commit([{_, Pid, Cells, Spans}], Payload, Last, _Idx) ->
-    {UpTo, Hs, Ids} = rw_bucket:probe_commit(Pid, self(), Cells, Payload, Spans, Last),
-    {UpTo, lists:ukeysort(1, [{element(1, E), {E, C}} || {E, C} <- Hs]), Ids};
-probe_commit(Plan, Payload, Last, Idx) ->
-    Results = [rw_bucket:lock_probe(Pid, self(), Cells, Payload, Spans) || {_, Pid, Cells, Spans} <- Plan],
+%% {UpTo, Hits (one per member and partner), contact ids}.
+probe_commit([{_, Pid, Cells, Writes}], Last) ->
+    rw_bucket:probe_commit(Pid, self(), Cells, Writes, Last);
+probe_commit(Plan, Last) ->
+    Results = [rw_bucket:lock_probe(Pid, self(), Cells, Writes) || {_, Pid, Cells, Writes} <- Plan],
     {UpTo, Hits} = case [R || R <- Results, R =/= none] of
                        [] -> {Last, []};
                        Found ->
                            TStar = lists:min([T || {T, _} <- Found]),
-                           {TStar, lists:ukeysort(1, [{element(1, E), {E, C}} || {T, Hs} <- Found, T =:= TStar,
-                                                                                  {E, C} <- Hs])}
+                           %% a pair found in several buckets counts once
+                           {TStar, [H || {_, H} <- lists:ukeysort(1, [{{I, element(1, E)}, H}
+                                                                       || {T, Hs} <- Found, T =:= TStar,
+                                                                          {I, E, _} = H <- Hs])]}
                    end,
-    Ids = rw_bucket:contact_ids(UpTo, Idx, [OIdx || {OIdx, _} <- Hits]),
+    Ids = rw_bucket:contact_ids(UpTo, [{I, element(1, E)} || {I, E, _} <- Hits]),
     [rw_bucket:commit_unlock(Pid, self(), UpTo, Ids) || {_, Pid, _, _} <- Plan],
     {UpTo, Hits, Ids}.
 
-%% The pre-response state at substep T (GVT =< T =< LVT): in the newest
-%% write that starts at or before T.
+%% The members' pre-response states at substep T (GVT =< T =< LVT), as a
+%% tuple: in the newest write that starts at or before T.
 state_at(T, #d{written = Written, dt = Dt}) -> state_in(T, Written, Dt).
 
-state_in(T, [{T0, _, _, Packed} | _], Dt) when T0 =< T -> rw_states:state(Packed, (T - T0) div Dt + 1);
+state_in(T, [{T0, _, _, Packed} | _], Dt) when T0 =< T ->
+    I = (T - T0) div Dt + 1,
+    list_to_tuple([rw_states:state(P, I) || P <- tuple_to_list(Packed)]);
 state_in(T, [_ | Older], Dt) -> state_in(T, Older, Dt).
 
 %% A box that holds the sphere at every state of a step (swept over each
@@ -391,13 +586,13 @@ extend(I, Sts, Disps, X0, Y0, Z0, X1, Y1, Z1) ->
     {Xb, Yb, Zb} = {max(X, X + DX), max(Y, Y + DY), max(Z, Z + DZ)},
     extend(I + 1, Sts, Disps, min(X0, Xa), min(Y0, Ya), min(Z0, Za), max(X1, Xb), max(Y1, Yb), max(Z1, Zb)).
 
-%% For each cell touched during the step, the first and last substep at
-%% which the body's box (swept with CCD) touches it. Boxes seldom change
+%% For each cell a member's box (swept with CCD) touches during the step,
+%% the first and last substep at which it does. Boxes seldom change
 %% between substeps, so cells are enumerated only when they do, and a box
 %% is hashed again only when it leaves the region that keeps its cells.
-cell_spans(T0, [St0 | Rest], Disps, {X0, Y0, Z0, X1, Y1, Z1},
-           #d{sim = #sim{scene = #scene{cell_size = C}}, sphere = #sphere{radius = R}, dt = Dt} = D) ->
-    Box = rw_hash:box(aabb(St0, disp_at(Disps, 1), D), C),
+cell_spans(T0, {[St0 | Rest], Disps, {X0, Y0, Z0, X1, Y1, Z1}, R},
+           #d{sim = #sim{scene = #scene{cell_size = C}}, dt = Dt}) ->
+    Box = rw_hash:box(aabb(St0, disp_at(Disps, 1), R), C),
     Region = rw_hash:region(Box, C),
     %% Without CCD a state's box is its position +- R, and rounding is
     %% monotonic: if the boxes at the extreme positions keep the first
@@ -406,21 +601,20 @@ cell_spans(T0, [St0 | Rest], Disps, {X0, Y0, Z0, X1, Y1, Z1},
         rw_hash:in_region(rw_shape:sphere_aabb({X0, Y0, Z0}, R), Region) andalso
         rw_hash:in_region(rw_shape:sphere_aabb({X1, Y1, Z1}, R), Region) of
         true -> add_run(Box, T0, T0 + length(Rest) * Dt, #{});
-        false -> spans(Rest, 2, T0 + Dt, Disps, Box, Region, T0, T0, D, #{})
+        false -> spans(Rest, 2, T0 + Dt, Disps, Box, Region, T0, T0, {C, R, Dt}, #{})
     end.
 
 %% State I of the step (at substep T) and the rest.
-spans([], _I, _T, _Disps, Box, _Region, Ta, Tb, _D, Acc) ->
+spans([], _I, _T, _Disps, Box, _Region, Ta, Tb, _CRDt, Acc) ->
     add_run(Box, Ta, Tb, Acc);
-spans([St | Rest], I, T, Disps, Box, Region, Ta, Tb,
-      #d{sim = #sim{scene = #scene{cell_size = C}}, dt = Dt} = D, Acc) ->
-    AABB = aabb(St, disp_at(Disps, I), D),
+spans([St | Rest], I, T, Disps, Box, Region, Ta, Tb, {C, R, Dt} = CRDt, Acc) ->
+    AABB = aabb(St, disp_at(Disps, I), R),
     case rw_hash:in_region(AABB, Region) of
-        true -> spans(Rest, I + 1, T + Dt, Disps, Box, Region, Ta, T, D, Acc);
+        true -> spans(Rest, I + 1, T + Dt, Disps, Box, Region, Ta, T, CRDt, Acc);
         false ->
             case rw_hash:box(AABB, C) of
-                Box -> spans(Rest, I + 1, T + Dt, Disps, Box, Region, Ta, T, D, Acc);
-                New -> spans(Rest, I + 1, T + Dt, Disps, New, rw_hash:region(New, C), T, T, D,
+                Box -> spans(Rest, I + 1, T + Dt, Disps, Box, Region, Ta, T, CRDt, Acc);
+                New -> spans(Rest, I + 1, T + Dt, Disps, New, rw_hash:region(New, C), T, T, CRDt,
                              add_run(Box, Ta, Tb, Acc))
             end
     end.
@@ -435,41 +629,50 @@ add_run(Box, Ta, Tb, Acc) ->
 disp_at(undefined, _) -> undefined;
 disp_at(Disps, I) -> element(I, Disps).
 
-aabb(#st{p = P}, undefined, #d{sphere = #sphere{radius = R}}) -> rw_shape:sphere_aabb(P, R);
-aabb(#st{p = P}, Disp, #d{sphere = #sphere{radius = R}}) -> rw_shape:swept_aabb(P, Disp, R).
+aabb(#st{p = P}, undefined, R) -> rw_shape:sphere_aabb(P, R);
+aabb(#st{p = P}, Disp, R) -> rw_shape:swept_aabb(P, Disp, R).
 
-%% Group cell spans by bucket, in bucket order (the lock order):
-%% [{BucketIndex, Pid, Cells, [{Cell, Ta, Tb}]}].
-plan(Spans, #sim{buckets = Buckets}) ->
+%% Group the members' cell spans by bucket, in bucket order (the lock
+%% order): [{BucketIndex, Pid, Cells, [{Payload, [{Cell, Ta, Tb}]}]}].
+plan(Writes, #sim{buckets = Buckets}) ->
     NB = tuple_size(Buckets),
-    ByBucket = maps:fold(fun(Cell, {Ta, Tb}, Acc) ->
-                                 B = rw_hash:bucket(Cell, NB),
-                                 maps:update_with(B, fun(L) -> [{Cell, Ta, Tb} | L] end, [{Cell, Ta, Tb}], Acc)
-                         end, #{}, Spans),
-    [{B, element(B + 1, Buckets), lists:sort([C || {C, _, _} <- Ss]), Ss}
-     || {B, Ss} <- lists:sort(maps:to_list(ByBucket))].
+    ByBucket = lists:foldl(
+                 fun({Payload, Spans}, Acc) ->
+                         Mine = maps:fold(fun(Cell, {Ta, Tb}, A) ->
+                                                  B = rw_hash:bucket(Cell, NB),
+                                                  maps:update_with(B, fun(L) -> [{Cell, Ta, Tb} | L] end,
+                                                                   [{Cell, Ta, Tb}], A)
+                                          end, #{}, Spans),
+                         maps:fold(fun(B, Ss, A) ->
+                                           maps:update_with(B, fun(L) -> [{Payload, Ss} | L] end, [{Payload, Ss}], A)
+                                   end, Acc, Mine)
+                 end, #{}, Writes),
+    [{B, element(B + 1, Buckets), lists:usort([C || {_, Ss} <- Ws, {C, _, _} <- Ss]), Ws}
+     || {B, Ws} <- lists:sort(maps:to_list(ByBucket))].
 
 send_events(_T, [], _Ids, D) -> D;
-send_events(T, Hits, Ids, #d{idx = Idx, sphere = S, model = M, contacts = Contacts} = D) ->
-    %% the pair sees both spheres' velocities after their fixture contacts
-    St = seen_by_pairs(S, state_at(T, D), D),
-    {Mine, Pend} = lists:foldl(
-                     fun({OIdx, {{_, OPid, OS, OSt0, _}, Contact}}, {Acc, P}) ->
-                             OSt = seen_by_pairs(OS, OSt0, D),
-                             {Own, Theirs} = case Idx < OIdx of
-                                                 true -> rw_response:pair(M, S, St, OS, OSt, Contact);
-                                                 false -> swap(rw_response:pair(M, OS, OSt, S, St, Contact))
-                                             end,
-                             Cid = maps:get(OIdx, Ids),
-                             send(OPid, {event, Cid, T, Idx, self(), Theirs}, D),
-                             {Acc#{Cid => {OIdx, Own}}, P#{Cid => true}}
-                     end, {maps:get(T, Contacts, #{}), D#d.pend_ev}, Hits),
+send_events(T, Hits, Ids, #d{spheres = Spheres, pos = Pos, model = M, contacts = Contacts} = D) ->
+    States = state_at(T, D),
+    {Mine, Pend, Touched} =
+        lists:foldl(
+          fun({Idx, {OIdx, OPid, OS, OSt0, _}, Contact}, {Acc, P, Tch}) ->
+                  K = maps:get(Idx, Pos),
+                  S = element(K, Spheres),
+                  %% the pair sees both spheres' velocities after their fixture contacts
+                  St = seen_by_pairs(S, element(K, States), D),
+                  OSt = seen_by_pairs(OS, OSt0, D),
+                  {Own, Theirs} = case Idx < OIdx of
+                                      true -> rw_response:pair(M, S, St, OS, OSt, Contact);
+                                      false -> swap(rw_response:pair(M, OS, OSt, S, St, Contact))
+                                  end,
+                  Cid = maps:get({Idx, OIdx}, Ids),
+                  send(OPid, {event, Cid, T, Idx, self(), OIdx, Theirs}, D),
+                  {Acc#{Cid => {Idx, OIdx, Own}}, P#{Cid => true}, touch(OIdx, T, Tch)}
+          end, {maps:get(T, Contacts, #{}), D#d.pend_ev, D#d.touched}, Hits),
     counters:add(D#d.sim#sim.stats, ?ST_EVENTS, length(Hits)),
-    Partners = maps:merge(D#d.partners, maps:from_list([{OIdx, OPid} || {OIdx, {{_, OPid, _, _, _}, _}} <- Hits])),
-    Touched = lists:foldl(fun({OIdx, _}, Acc) -> touch(OIdx, T, Acc) end, D#d.touched, Hits),
-    D#d{contacts = Contacts#{T => Mine}, pend_ev = Pend, partners = Partners, touched = Touched}.
+    D#d{contacts = Contacts#{T => Mine}, pend_ev = Pend, touched = Touched}.
 
-seen_by_pairs(S, St, #d{model = M, sim = #sim{scene = #scene{fixtures = Fixtures}}}) ->
+seen_by_pairs(S, St, #d{model = M, fixtures = Fixtures}) ->
     rw_dynamics:after_fixtures(St, rw_dynamics:fixture_effects(M, S, St, Fixtures)).
 
 touch(PIdx, T, Touched) ->
@@ -483,7 +686,7 @@ swap({A, B}) -> {B, A}.
 
 %%% Events and antievents
 
-on_event(Cid, T, FromIdx, From, Effect, #d{ghosts = Ghosts, lvt = Lvt, contacts = Contacts} = D) ->
+on_event(Cid, T, FromIdx, From, ToIdx, Effect, #d{ghosts = Ghosts, lvt = Lvt, contacts = Contacts} = D) ->
     case maps:take(Cid, Ghosts) of
         {true, Ghosts1} ->
             %% its contact died with a state we deleted; our antievent answers it
@@ -494,8 +697,8 @@ on_event(Cid, T, FromIdx, From, Effect, #d{ghosts = Ghosts, lvt = Lvt, contacts 
             %% this contact follows (same sender, same order), nothing to do
             D;
         error ->
-            D1 = D#d{contacts = Contacts#{T => (maps:get(T, Contacts, #{}))#{Cid => {FromIdx, Effect}}},
-                     partners = (D#d.partners)#{FromIdx => From}, touched = touch(FromIdx, T, D#d.touched)},
+            D1 = D#d{contacts = Contacts#{T => (maps:get(T, Contacts, #{}))#{Cid => {ToIdx, FromIdx, Effect}}},
+                     touched = touch(FromIdx, T, D#d.touched)},
             D2 = case T < Lvt of
                      true -> counters:add(D#d.sim#sim.stats, ?ST_PRIMARY, 1),
                              roll_back(T, D1);
@@ -528,7 +731,7 @@ on_antievent(Cid, T, From, #d{contacts = Contacts, lvt = Lvt} = D) ->
 roll_back(R, #d{lvt = Lvt} = D) when R >= Lvt -> withdraw(R, D);
 roll_back(R, D) -> ?TIMED(D, ?ST_RED_ROLLBACK, undo(R, D)).
 
-undo(R, #d{idx = Idx, lvt = Lvt, dt = Dt, contacts = Contacts, sim = Sim, written = Written} = D) ->
+undo(R, #d{idxs = Idxs, lvt = Lvt, dt = Dt, contacts = Contacts, sim = Sim, written = Written} = D) ->
     %% every bucket holding a state after R, with the cells it holds them in
     Where = lists:foldl(fun({B, Pid, Cells}, Acc) ->
                                 maps:update_with({B, Pid}, fun(Cs) -> Cells ++ Cs end, Cells, Acc)
@@ -536,12 +739,12 @@ undo(R, #d{idx = Idx, lvt = Lvt, dt = Dt, contacts = Contacts, sim = Sim, writte
     maybe_delay(D),
     Plan = lists:sort(maps:to_list(Where)),
     %% (the buckets count their own work as TVHT; waiting is not work)
-    Lost = ?TIMED(D, ?ST_RED_ROLLBACK_CALLS, lists:append([rw_bucket:lock_delete(Pid, self(), lists:usort(Cells), Idx, R)
+    Lost = ?TIMED(D, ?ST_RED_ROLLBACK_CALLS, lists:append([rw_bucket:lock_delete(Pid, self(), lists:usort(Cells), Idxs, R)
                                                           || {{_, Pid}, Cells} <- Plan])),
     [rw_bucket:unlock(Pid, self()) || {{_, Pid}, _} <- Plan],
     Written1 = [{T0, min(UpTo, R), Ws, P} || {T0, UpTo, Ws, P} <- Written, T0 =< R],
     %% the writes hold a state at every substep up to LVT
-    counters:add(Sim#sim.stats, ?ST_ROLLED_BACK, (Lvt - R) div Dt),
+    counters:add(Sim#sim.stats, ?ST_ROLLED_BACK, (Lvt - R) div Dt * length(Idxs)),
     Me = self(),
     {PendAnti, Ghosts} =
         lists:foldl(
@@ -570,18 +773,22 @@ undo(R, #d{idx = Idx, lvt = Lvt, dt = Dt, contacts = Contacts, sim = Sim, writte
 %% GVT as rw_gvt last published it.
 read_gvt(#d{sim = #sim{gvt_now = Ref}} = D) -> on_gvt(atomics:get(Ref, 1), D).
 
-%% A body that cannot step until GVT advances asks rw_gvt to wake it at
-%% the earliest GVT at which it might (step/3): when LVT_ub is min_step/1
-%% past its LVT, reaches the end, or when no sync point lies between GVT and
-%% its LVT any more. Early is harmless (it asks again), late would stall.
-wake_me(#d{lvt = Lvt, end_t = End} = D) when Lvt >= End -> D;
-wake_me(#d{lvt = Lvt, gvt = G, stride = S, frame = F, end_t = End, wake_at = Asked} = D) ->
+%% An entity that cannot step until GVT advances asks rw_gvt to wake it
+%% then: at its regroup point S (capped at S, it waits for GVT to reach S),
+%% or at the earliest GVT at which it might step (step/3): when LVT_ub is
+%% min_step/1 past its LVT, reaches the end, or when no sync point lies
+%% between GVT and its LVT any more. Early is harmless (it asks again),
+%% late would stall.
+wait(true, #d{lvt = S} = D) -> wake_at(S, D);
+wait(false, #d{lvt = Lvt, end_t = End} = D) when Lvt >= End -> D;
+wait(false, #d{lvt = Lvt, gvt = G, stride = S, frame = F, end_t = End} = D) ->
     MinStep = min_step(D),
-    At = max(G + 1, lists:min([Lvt + MinStep - S, End - S, max(Lvt div F * F, Lvt div S * S)])),
-    case Asked of
-        _ when is_integer(Asked), Asked =< At -> D;   % already asked for as early
-        _ -> ok = rw_gvt:wake_at(D#d.sim#sim.gvt, self(), At), D#d{wake_at = At}
-    end.
+    wake_at(max(G + 1, lists:min([Lvt + MinStep - S, End - S, max(Lvt div F * F, Lvt div S * S)])), D).
+
+wake_at(At, #d{wake_at = Asked} = D) when is_integer(Asked), Asked =< At -> D;   % already asked for as early
+wake_at(At, D) ->
+    ok = rw_gvt:wake_at(D#d.sim#sim.gvt, self(), At),
+    D#d{wake_at = At}.
 
 %% The shortest step a body takes once it has passed the next sync point:
 %% three quarters of a stride. A write costs about the same however many
@@ -598,12 +805,20 @@ next_sync(#d{gvt = G, frame = F, stride = S, end_t = End}) -> rw_gvt:sync_after(
 %% that GVT can always advance far enough for LVT_ub to reach the next one.
 is_sync(T, #d{frame = F, stride = S, end_t = End}) -> T rem F =:= 0 orelse T rem S =:= 0 orelse T =:= End.
 
-commit(T, #st{p = P, q = Q}, {V, W, _U}, #d{sim = Sim, idx = Idx, sphere = #sphere{id = Id}} = D) ->
+%% Commit every member's state at T: its record, and the count of bodies
+%% committed at T.
+commit(T, States, Posts, #d{sim = Sim, spheres = Spheres} = D) ->
     case T > D#d.gvt andalso is_sync(T, D) andalso not lists:member(T, D#d.committed) of
         true ->
-            ets:insert(Sim#sim.records, {{T, Idx}, {Id, P, V, Q, W}}),
-            _ = case ets:update_counter(Sim#sim.counts, T, 1, {T, 0}) of
-                    N when N =:= Sim#sim.n -> Sim#sim.gvt ! {complete, T};
+            N = tuple_size(Spheres),
+            ets:insert(Sim#sim.records, [begin
+                                              #sphere{idx = Idx, id = Id} = element(K, Spheres),
+                                              #st{p = P, q = Q} = element(K, States),
+                                              {V, W, _U} = element(K, Posts),
+                                              {{T, Idx}, {Id, P, V, Q, W}}
+                                          end || K <- lists:seq(1, N)]),
+            _ = case ets:update_counter(Sim#sim.counts, T, N, {T, 0}) of
+                    C when C =:= Sim#sim.n -> Sim#sim.gvt ! {complete, T};
                     _ -> ok
                 end,
             D#d{committed = [T | D#d.committed]};
@@ -611,18 +826,25 @@ commit(T, #st{p = P, q = Q}, {V, W, _U}, #d{sim = Sim, idx = Idx, sphere = #sphe
             D
     end.
 
-%% A body waiting at LVT_ub (or at the end time) commits its LVT once
+%% An entity waiting at LVT_ub (or at the end time) commits its LVT once
 %% nothing is awaited there; a later event at LVT withdraws it again.
 commit_lvt(#d{lvt = Lvt} = D) ->
-    St = state_at(Lvt, D),
-    commit(Lvt, St, rw_dynamics:respond(St, effects(Lvt, St, D)), D).
+    case Lvt > D#d.gvt andalso is_sync(Lvt, D) andalso not lists:member(Lvt, D#d.committed) of
+        true ->
+            States = state_at(Lvt, D),
+            {Posts, D1} = posts(Lvt, States, D),
+            commit(Lvt, States, Posts, D1);
+        false ->
+            D
+    end.
 
 %% Take back every commit at or after T.
-withdraw(T, #d{committed = Committed, sim = Sim, idx = Idx} = D) ->
+withdraw(T, #d{committed = Committed, sim = Sim, idxs = Idxs} = D) ->
     {Gone, Kept} = lists:partition(fun(C) -> C >= T end, Committed),
-    [begin
-         ets:update_counter(Sim#sim.counts, C, -1),
-         ets:delete(Sim#sim.records, {C, Idx})
+    N = length(Idxs),
+    _ = [begin
+         ets:update_counter(Sim#sim.counts, C, -N),
+         [ets:delete(Sim#sim.records, {C, Idx}) || Idx <- Idxs]
      end || C <- Gone],
     D#d{committed = Kept}.
 

@@ -1,11 +1,15 @@
 %% A bucket of the temporal volumetric hash table (TVHT). A fixed pool of
-%% buckets shares the cells of Z^3 (rw_hash:bucket/2). A body writes the
-%% states of one step at once: for each cell its AABB touches, the range of
-%% substeps [Ta, Tb] during which it does. A bucket keeps those segments per
-%% cell, runs the narrowphase on a write against the other bodies' states at
-%% the same LVT in the same cell, remembers the contacts it reported, returns
-%% them when one of the two states is deleted, and locks cells for one writer
-%% at a time.
+%% buckets shares the cells of Z^3 (rw_hash:bucket/2). An entity (rw_body:
+%% one body, or a group of bodies in persistent contact) writes the states
+%% of one step at once, for each of its members: for each cell the member's
+%% AABB touches, the range of substeps [Ta, Tb] during which it does. A
+%% bucket keeps those segments per cell and body, runs the narrowphase on a
+%% write against the other bodies' states at the same LVT in the same cell,
+%% remembers the contacts it reported, returns them when one of the two
+%% states is deleted, and locks cells for one writer at a time. Contacts
+%% among the members of one write are not its business: the writer finds
+%% those itself (rw_island), and the members' segments are stored only
+%% after the whole write has been probed.
 %%
 %% Locking (Lemma 1): a body asks the buckets it needs in increasing bucket
 %% index, and a bucket grants a request for a set of its cells only when all
@@ -15,10 +19,10 @@
 -module(rw_bucket).
 -behaviour(gen_server).
 -include("rigidwarp.hrl").
--export([start_link/3, lock_probe/5, commit_unlock/4, probe_commit/6, lock_delete/5, unlock/2, gvt/2, profile/2,
-         contact_ids/3]).
+-export([start_link/3, lock_probe/4, commit_unlock/4, probe_commit/5, lock_delete/5, unlock/2, gvt/2, profile/2,
+         contact_ids/2]).
 -export([init/1, handle_call/3, handle_cast/2, handle_info/2]).
--export_type([entry/0, payload/0, bounds/0, hit/0, cid/0]).
+-export_type([entry/0, payload/0, write/0, bounds/0, hit/0, cid/0]).
 
 %% One step's states of one body: T0 is the LVT of the first state,
 %% States (and, with CCD, the free displacements) hold one per substep,
@@ -30,8 +34,11 @@
 -type span() :: {rw_hash:cell(), Ta :: non_neg_integer(), Tb :: non_neg_integer()}.
 %% One body's state at one LVT, as the narrowphase sees it.
 -type entry() :: {Idx :: non_neg_integer(), pid(), #sphere{}, #st{}, Disp :: rw_vec:vec() | undefined}.
-%% A contact found by the narrowphase, in canonical order (lower idx first).
--type hit() :: {entry(), #contact{}}.
+%% One member's payload and the spans of its cells in this bucket.
+-type write() :: {payload(), [span()]}.
+%% A contact found by the narrowphase between the writer's member MyIdx and
+%% another body, in canonical order (lower idx first).
+-type hit() :: {MyIdx :: non_neg_integer(), entry(), #contact{}}.
 -type cid() :: {non_neg_integer(), non_neg_integer(), non_neg_integer(), reference()}.
 -type seg() :: {Ta :: non_neg_integer(), Tb :: non_neg_integer(), payload()}.
 
@@ -48,7 +55,7 @@
     %% contacts reported from this bucket, by body: [{T, Cid}]
     by_body = #{} :: #{non_neg_integer() => [{non_neg_integer(), cid()}]},
     contacts = #{} :: #{cid() => {Detector :: pid(), Other :: pid()}},
-    probes = #{} :: #{pid() => {payload(), [span()], {non_neg_integer(), [hit()]} | none}},
+    probes = #{} :: #{pid() => {[write()], {non_neg_integer(), [hit()]} | none}},
     gc_at = 0 :: non_neg_integer(),
     %% when profiling: the simulation's counters (tvht_reductions is counter 7)
     profile = undefined :: counters:counters_ref() | undefined
@@ -59,39 +66,43 @@
 -spec start_link(#model{}, pos_integer(), non_neg_integer()) -> {ok, pid()}.
 start_link(Model, Dt, _Index) -> gen_server:start_link(?MODULE, {Model, Dt}, []).
 
-%% Lock Cells for the caller, then find the earliest LVT at which the
-%% payload touches another body: {T, Hits} or none. The caller must follow
-%% with commit_unlock/4.
--spec lock_probe(pid(), pid(), [rw_hash:cell()], payload(), [span()]) -> {non_neg_integer(), [hit()]} | none.
-lock_probe(Bucket, Owner, Cells, Payload, Spans) ->
-    gen_server:call(Bucket, {lock, Owner, Cells, {probe, Payload, Spans}}, infinity).
+%% Lock Cells for the caller, then find the earliest LVT at which one of
+%% the written members touches another body: {T, Hits} or none. The caller
+%% must follow with commit_unlock/4.
+-spec lock_probe(pid(), pid(), [rw_hash:cell()], [write()]) -> {non_neg_integer(), [hit()]} | none.
+lock_probe(Bucket, Owner, Cells, Writes) ->
+    gen_server:call(Bucket, {lock, Owner, Cells, {probe, Writes}}, infinity).
 
 %% Store the probed states up to and including UpTo, record the contacts
-%% at UpTo under the ids the writer gave them (by partner idx), and unlock.
--spec commit_unlock(pid(), pid(), non_neg_integer(), #{non_neg_integer() => cid()}) -> ok.
+%% at UpTo under the ids the writer gave them (by {member, partner} idx),
+%% and unlock.
+-spec commit_unlock(pid(), pid(), non_neg_integer(), ids()) -> ok.
 commit_unlock(Bucket, Owner, UpTo, Ids) ->
     gen_server:cast(Bucket, {commit_unlock, Owner, UpTo, Ids}).
 
-%% lock_probe/5 and commit_unlock/4 in one call, for a write whose cells
+%% lock_probe/4 and commit_unlock/4 in one call, for a write whose cells
 %% are all in this bucket: the states are stored up to the first LVT with
 %% contacts (or Last), and the contacts there get ids. No lock outlives
 %% the call, so no other writer waits on this one's messages.
--spec probe_commit(pid(), pid(), [rw_hash:cell()], payload(), [span()], non_neg_integer()) ->
-          {UpTo :: non_neg_integer(), [hit()], #{non_neg_integer() => cid()}}.
-probe_commit(Bucket, Owner, Cells, Payload, Spans, Last) ->
-    gen_server:call(Bucket, {lock, Owner, Cells, {probe_commit, Payload, Spans, Last}}, infinity).
+-spec probe_commit(pid(), pid(), [rw_hash:cell()], [write()], non_neg_integer()) ->
+          {UpTo :: non_neg_integer(), [hit()], ids()}.
+probe_commit(Bucket, Owner, Cells, Writes, Last) ->
+    gen_server:call(Bucket, {lock, Owner, Cells, {probe_commit, Writes, Last}}, infinity).
 
-%% The ids of body Idx's contacts at T with the bodies OIdxs, by partner:
-%% {T, lower idx, higher idx, unique}.
--spec contact_ids(non_neg_integer(), non_neg_integer(), [non_neg_integer()]) -> #{non_neg_integer() => cid()}.
-contact_ids(T, Idx, OIdxs) ->
-    maps:from_list([{OIdx, {T, min(Idx, OIdx), max(Idx, OIdx), make_ref()}} || OIdx <- OIdxs]).
+%% The ids of the contacts at T between the writer's members and other
+%% bodies, by {member idx, partner idx}: {T, lower idx, higher idx, unique}.
+-type ids() :: #{{non_neg_integer(), non_neg_integer()} => cid()}.
+-spec contact_ids(non_neg_integer(), [{non_neg_integer(), non_neg_integer()}]) -> ids().
+contact_ids(T, Pairs) ->
+    maps:from_list([{{Idx, OIdx}, {T, min(Idx, OIdx), max(Idx, OIdx), make_ref()}} || {Idx, OIdx} <- Pairs]).
 
-%% Lock Cells, delete body Idx's states after R in them, and return the
-%% contacts those states had: [{Cid, Detector, Other}]. Unlock with unlock/2.
--spec lock_delete(pid(), pid(), [rw_hash:cell()], non_neg_integer(), non_neg_integer()) -> [{cid(), pid(), pid()}].
-lock_delete(Bucket, Owner, Cells, Idx, R) ->
-    gen_server:call(Bucket, {lock, Owner, Cells, {delete, Idx, R, Cells}}, infinity).
+%% Lock Cells, delete the states after R of the bodies Idxs in them, and
+%% return the contacts those states had: [{Cid, Detector, Other}]. Unlock
+%% with unlock/2.
+-spec lock_delete(pid(), pid(), [rw_hash:cell()], [non_neg_integer()], non_neg_integer()) ->
+          [{cid(), pid(), pid()}].
+lock_delete(Bucket, Owner, Cells, Idxs, R) ->
+    gen_server:call(Bucket, {lock, Owner, Cells, {delete, Idxs, R, Cells}}, infinity).
 
 -spec unlock(pid(), pid()) -> ok.
 unlock(Bucket, Owner) -> gen_server:cast(Bucket, {unlock, Owner}).
@@ -204,29 +215,33 @@ grant([{From, Owner, Cells, Op} = W | Rest], Kept, S) ->
 
 %%% Operations under lock
 
-locked_op(Owner, {probe, Payload, Spans}, S) ->
-    Result = probe(Payload, Spans, S),
-    {Result, S#state{probes = (S#state.probes)#{Owner => {Payload, Spans, Result}}}};
-locked_op(Owner, {probe_commit, {Idx, _, _, _, _, _} = Payload, Spans, Last}, S) ->
-    Result = probe(Payload, Spans, S),
+locked_op(Owner, {probe, Writes}, S) ->
+    Result = probe(Writes, S),
+    {Result, S#state{probes = (S#state.probes)#{Owner => {Writes, Result}}}};
+locked_op(Owner, {probe_commit, Writes, Last}, S) ->
+    Result = probe(Writes, S),
     {UpTo, Hits} = case Result of
                        none -> {Last, []};
                        Found -> Found
                    end,
-    Ids = contact_ids(UpTo, Idx, [OIdx || {{OIdx, _, _, _, _}, _} <- Hits]),
-    S1 = store(Owner, Payload, Spans, Result, UpTo, Ids, S),
+    Ids = contact_ids(UpTo, [{Idx, OIdx} || {Idx, {OIdx, _, _, _, _}, _} <- Hits]),
+    S1 = store(Owner, Writes, Result, UpTo, Ids, S),
     %% The cells were free when this call took them, so freeing them again
     %% changes nothing for the requests still waiting (and granting here
     %% would re-enter grant/3, which may be running this very call).
     {{UpTo, Hits, Ids}, drop_locks(Owner, S1)};
-locked_op(_Owner, {delete, Idx, R, Cells}, S) ->
-    delete(Idx, R, Cells, S).
+locked_op(_Owner, {delete, Idxs, R, Cells}, S) ->
+    delete(Idxs, R, Cells, S).
 
-%% The earliest LVT at which the payload touches another body's state in
-%% one of its cells, with every contact at that LVT. A pair of writes often
-%% shares several cells: their windows are merged first, so that each pair
-%% is checked once, and not at all when their bounds are apart.
-probe({Idx, _, _, _, _, _} = Mine, Spans, #state{cells = Cells} = S) ->
+%% The earliest LVT at which one of the written members touches another
+%% body's state in one of its cells, with every contact at that LVT. A pair
+%% of writes often shares several cells: their windows are merged first, so
+%% that each pair is checked once, and not at all when their bounds are
+%% apart.
+probe(Writes, S) -> probe(Writes, none, S).
+
+probe([], Best, _S) -> Best;
+probe([{{Idx, _, _, _, _, _} = Mine, Spans} | Rest], Best, #state{cells = Cells} = S) ->
     Windows = lists:foldl(
                 fun({Cell, Ta, Tb}, Acc) ->
                         case Cells of
@@ -235,7 +250,7 @@ probe({Idx, _, _, _, _, _} = Mine, Spans, #state{cells = Cells} = S) ->
                         end
                 end, #{}, Spans),
     %% (maps:to_list is one BIF call; maps:fold steps an iterator in Erlang)
-    scan_windows(maps:to_list(Windows), Mine, none, S).
+    probe(Rest, scan_windows(maps:to_list(Windows), Mine, Best, S), S).
 
 cell_windows([], _Idx, _Ta, _Tb, Acc) -> Acc;
 cell_windows([{Idx, _} | Rest], Idx, Ta, Tb, Acc) -> cell_windows(Rest, Idx, Ta, Tb, Acc);
@@ -290,13 +305,13 @@ scan(T, Hi, Mine, Other, Best, #state{model = M, dt = Dt} = S) ->
         _ -> hit(T, Mine, Other, Best, S)
     end.
 
-hit(T, Mine, Other, Best, #state{model = M, dt = Dt}) ->
+hit(T, {Idx, _, _, _, _, _} = Mine, Other, Best, #state{model = M, dt = Dt}) ->
     B = entry(Other, T, Dt),
-    Hit = {B, contact(M, entry(Mine, T, Dt), B)},
+    Hit = {Idx, B, contact(M, entry(Mine, T, Dt), B)},
     case Best of
         {T, Hits} ->
             OIdx = element(1, B),
-            case lists:any(fun({{I, _, _, _, _}, _}) -> I =:= OIdx end, Hits) of
+            case lists:any(fun({I, {O, _, _, _, _}, _}) -> I =:= Idx andalso O =:= OIdx end, Hits) of
                 true -> Best;
                 false -> {T, [Hit | Hits]}
             end;
@@ -318,36 +333,50 @@ narrow(#model{ccd = true}, {_, _, #sphere{radius = RA}, #st{p = PA}, DA},
     rw_narrow:swept_sphere_sphere(PA, DA, RA, PB, DB, RB).
 
 commit(Owner, UpTo, Ids, #state{probes = Probes} = S) ->
-    {{Payload, Spans, Result}, Probes1} = maps:take(Owner, Probes),
-    store(Owner, Payload, Spans, Result, UpTo, Ids, S#state{probes = Probes1}).
+    {{Writes, Result}, Probes1} = maps:take(Owner, Probes),
+    store(Owner, Writes, Result, UpTo, Ids, S#state{probes = Probes1}).
 
-%% Store a probed payload's states up to UpTo and the contacts it found there.
-store(Owner, {Idx, _, _, _, _, _} = Payload, Spans, Result, UpTo, Ids, #state{cells = Cells} = S) ->
-    Cells1 = lists:foldl(fun({Cell, Ta, Tb}, Acc) when Ta =< UpTo ->
-                                 Seg = {Ta, min(Tb, UpTo), Payload},
-                                 case Acc of
-                                     #{Cell := #{Idx := Segs} = ByIdx} -> Acc#{Cell := ByIdx#{Idx := [Seg | Segs]}};
-                                     #{Cell := ByIdx} -> Acc#{Cell := ByIdx#{Idx => [Seg]}};
-                                     _ -> Acc#{Cell => #{Idx => [Seg]}}
-                                 end;
-                            (_, Acc) -> Acc
-                         end, Cells, Spans),
+%% Store the probed members' states up to UpTo, and the contacts the write
+%% found there (in this bucket).
+store(Owner, Writes, Result, UpTo, Ids, #state{cells = Cells} = S) ->
+    Cells1 = lists:foldl(fun({{Idx, _, _, _, _, _} = Payload, Spans}, C) -> store_spans(Idx, Payload, Spans, UpTo, C) end,
+                         Cells, Writes),
     S1 = S#state{cells = Cells1},
     case Result of
         {UpTo, Hits} ->
-            lists:foldl(fun({{OIdx, OPid, _, _, _}, _}, Acc) ->
-                                record(maps:get(OIdx, Ids), UpTo, Idx, Owner, OIdx, OPid, Acc)
+            lists:foldl(fun({Idx, {OIdx, OPid, _, _, _}, _}, Acc) ->
+                                record(maps:get({Idx, OIdx}, Ids), UpTo, Idx, Owner, OIdx, OPid, Acc)
                         end, S1, Hits);
         _ ->
             S1
     end.
+
+store_spans(Idx, Payload, Spans, UpTo, Cells) ->
+    lists:foldl(fun({Cell, Ta, Tb}, Acc) when Ta =< UpTo ->
+                        Seg = {Ta, min(Tb, UpTo), Payload},
+                        case Acc of
+                            #{Cell := #{Idx := Segs} = ByIdx} -> Acc#{Cell := ByIdx#{Idx := [Seg | Segs]}};
+                            #{Cell := ByIdx} -> Acc#{Cell := ByIdx#{Idx => [Seg]}};
+                            _ -> Acc#{Cell => #{Idx => [Seg]}}
+                        end;
+                   (_, Acc) -> Acc
+                end, Cells, Spans).
 
 record(Cid, T, Idx, Detector, OIdx, Other, #state{by_body = By, contacts = C} = S) ->
     Add = fun(L) -> [{T, Cid} | L] end,
     By1 = maps:update_with(OIdx, Add, [{T, Cid}], maps:update_with(Idx, Add, [{T, Cid}], By)),
     S#state{by_body = By1, contacts = C#{Cid => {Detector, Other}}}.
 
-delete(Idx, R, Owned, #state{cells = Cells, by_body = By, contacts = C} = S) ->
+%% Delete the states after R of the bodies Idxs in the cells Owned; return
+%% the contacts they had (once each).
+delete(Idxs, R, Owned, S) ->
+    {Lost, S1} = lists:foldl(fun(Idx, {L, Acc}) ->
+                                     {L1, Acc1} = delete_one(Idx, R, Owned, Acc),
+                                     {L1 ++ L, Acc1}
+                             end, {[], S}, Idxs),
+    {lists:ukeysort(1, Lost), S1}.
+
+delete_one(Idx, R, Owned, #state{cells = Cells, by_body = By, contacts = C} = S) ->
     Cells1 = lists:foldl(
                fun(Cell, Acc) ->
                        case Acc of

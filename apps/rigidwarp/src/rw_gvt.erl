@@ -9,6 +9,11 @@
 %% (wake_at/3), so an advance costs a message per waiting body, not one
 %% per body.
 %%
+%% Contact groups: at every regroup point X (a multiple of #sim.period)
+%% it plans the groups from the committed states at X (rw_regroup) and
+%% writes who moves at X + period into the plans table, before it
+%% publishes the GVT that lets any body step past X + period.
+%%
 %% A watchdog stops the run with a diagnostic naming every body's phase,
 %% LVT and awaited acknowledgements if GVT does not advance for a while.
 -module(rw_gvt).
@@ -28,7 +33,10 @@
     last_advance :: integer() | undefined,
     watchdog_ms = 10000 :: pos_integer(),
     ring_size = 1024 :: pos_integer(),
-    frames = 0 :: non_neg_integer()
+    frames = 0 :: non_neg_integer(),
+    pids = #{} :: #{non_neg_integer() => pid()},        % body idx => process
+    radii = #{} :: #{non_neg_integer() => float()},
+    leaders = #{} :: rw_regroup:leaders()               % the groups planned last
 }).
 
 -spec start_link() -> {ok, pid()}.
@@ -78,12 +86,15 @@ frames_after(Ring, T, Max) ->
 init([]) -> {ok, #s{}}.
 
 -spec handle_call(term(), gen_server:from(), #s{}) -> {reply, term(), #s{}}.
-handle_call({go, Sim, Bodies, Opts}, _From, S) ->
+handle_call({go, #sim{scene = #scene{spheres = Spheres}} = Sim, Bodies, Opts}, _From, S) ->
     Watchdog = maps:get(watchdog_ms, Opts, 10000),
     erlang:send_after(Watchdog div 4 + 1, self(), watchdog),
+    Idxs = [I || #sphere{idx = I} <- Spheres],
     {reply, ok, S#s{sim = Sim, bodies = Bodies, owner = maps:get(owner, Opts, undefined),
                     watchdog_ms = Watchdog, ring_size = maps:get(ring_size, Opts, 1024),
-                    last_advance = now_ms()}};
+                    last_advance = now_ms(), pids = maps:from_list(lists:zip(Idxs, Bodies)),
+                    radii = maps:from_list([{I, R} || #sphere{idx = I, radius = R} <- Spheres]),
+                    leaders = maps:from_list([{I, I} || I <- Idxs])}};
 handle_call({subscribe, Pid}, _From, #s{subscribers = Subs} = S) ->
     {reply, ok, S#s{subscribers = [Pid | Subs]}};
 handle_call(gvt, _From, #s{gvt = G} = S) ->
@@ -179,9 +190,10 @@ advance_over(#s{complete = C, sim = #sim{end_t = End} = Sim} = S) ->
                      false ->
                          S
                  end,
+            S0b = regroup(Next, S0),
             ets:select_delete(Sim#sim.records, [{{{Next, '_'}, '_'}, [], [true]}]),
             ets:delete(Sim#sim.counts, Next),
-            S1 = S0#s{gvt = Next, complete = C1, last_advance = now_ms()},
+            S1 = S0b#s{gvt = Next, complete = C1, last_advance = now_ms()},
             case Next of
                 End -> S1;
                 _ -> advance_over(S1)
@@ -189,6 +201,22 @@ advance_over(#s{complete = C, sim = #sim{end_t = End} = Sim} = S) ->
         error ->
             S
     end.
+
+%% At a regroup point X, plan the groups for X + period from the states
+%% committed at X (still in the records table) and write who moves then.
+regroup(X, #s{sim = #sim{period = P, end_t = End}} = S) when P =:= 0; X rem P =/= 0; X + P >= End -> S;
+regroup(X, #s{sim = #sim{period = P, group_max = Max, records = Records, plans = Plans, stats = Stats},
+              radii = Radii, leaders = Old, pids = Pids} = S) ->
+    Bodies = [{I, maps:get(I, Radii), Pos, V}
+              || {I, {_, Pos, V, _, _}} <- ets:select(Records, [{{{X, '$1'}, '$2'}, [], [{{'$1', '$2'}}]}])],
+    New = rw_regroup:plan(Bodies, Old, Max),
+    Moves = rw_regroup:moves(Old, New, Pids),
+    ets:insert(Plans, [{{X + P, I}, Move} || {I, Move} <- maps:to_list(Moves)]),
+    %% plans before the previous point are done with
+    ets:select_delete(Plans, [{{{'$1', '_'}, '_'}, [{'<', '$1', X}], [true]}]),
+    %% counter 13 is regroups: groups that change
+    counters:add(Stats, 13, length([M || {_, #{send := _} = M} <- maps:to_list(Moves)])),
+    S#s{leaders = New}.
 
 wake(G, Waiting) ->
     case gb_sets:is_empty(Waiting) of

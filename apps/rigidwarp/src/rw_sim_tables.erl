@@ -5,7 +5,8 @@
 -export([start_link/0, tables/1]).
 -export([init/1, handle_call/3, handle_cast/2]).
 
--type tables() :: #{records := ets:tid(), counts := ets:tid(), ring := ets:tid()}.
+-type tables() :: #{records := ets:tid(), counts := ets:tid(), ring := ets:tid(), plans := ets:tid(),
+                    owners := ets:tid()}.
 -export_type([tables/0]).
 
 -spec start_link() -> {ok, pid()}.
@@ -18,7 +19,9 @@ tables(Pid) -> gen_server:call(Pid, tables).
 init([]) ->
     {ok, #{records => ets:new(rw_records, [ordered_set, public, {write_concurrency, true}]),
            counts => ets:new(rw_counts, [set, public, {write_concurrency, true}]),
-           ring => ets:new(rw_frames, [set, public, {read_concurrency, true}])}}.
+           ring => ets:new(rw_frames, [set, public, {read_concurrency, true}]),
+           plans => ets:new(rw_plans, [set, public, {read_concurrency, true}]),
+           owners => ets:new(rw_owners, [set, public, {read_concurrency, true}, {write_concurrency, true}])}}.
 
 -spec handle_call(tables, gen_server:from(), tables()) -> {reply, tables(), tables()}.
 handle_call(tables, _From, Tabs) -> {reply, Tabs, Tabs}.

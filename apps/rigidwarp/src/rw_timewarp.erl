@@ -2,11 +2,12 @@
 %% rw_sims_sup, starts a body per sphere, and collects frames and counters.
 -module(rw_timewarp).
 -include("rigidwarp.hrl").
--export([start/2, run/2, stop/1, stats/1, progress/2, default_buckets/0, end_ms/1, lvt_slot/1]).
+-export([start/2, run/2, stop/1, stats/1, progress/2, default_buckets/0, default_group_max/0, end_ms/1, lvt_slot/1]).
 -export_type([handle/0, options/0]).
 
 -type handle() :: #{sup := pid(), gvt := pid(), ring := ets:tid(), sim := #sim{}, started := integer()}.
 -type options() :: #{buckets => pos_integer(), owner => pid(), subscribe => boolean(),
+                     groups => boolean(), group_max => pos_integer(),
                      watchdog_ms => pos_integer(), ring_size => pos_integer(), profile => boolean(),
                      delay => {Seed :: integer(), MaxMs :: non_neg_integer()},
                      on_frame => fun((rw_reference:frame()) -> any()),
@@ -15,11 +16,23 @@
 -define(STAT_NAMES, [events, antievents, primary_rollbacks, secondary_rollbacks,
                      rolled_back_substeps, computed_substeps,
                      tvht_reductions, integrate_reductions, rollback_reductions, gvt_reductions, rollback_calls_reductions,
-                     steps]).
+                     steps, regroups]).
 -define(PROFILE_NAMES, [tvht_reductions, integrate_reductions, rollback_reductions, gvt_reductions, rollback_calls_reductions]).
 
 -spec default_buckets() -> pos_integer().
 default_buckets() -> 64.
+
+%% The most bodies the engine steps as one contact group, by default: a
+%% group is one process, and groups should remain many enough to keep every
+%% scheduler busy.
+-spec default_group_max() -> pos_integer().
+default_group_max() -> 64.
+
+%% Bodies regroup at multiples of the stride at least 64 substeps apart:
+%% the GVT process plans each regroup point a period ahead, from the states
+%% at the one before, and every body must have heard of it before it can
+%% step past (the period is at least the stride, so a body never can).
+period(#scene{stride = Stride, substep = Dt}) -> Stride * max(1, (64 * Dt + Stride - 1) div Stride).
 
 %% Start a simulation; it runs on its own until the scene's end.
 -spec start(#scene{}, options()) -> {ok, handle()} | {error, term()}.
@@ -32,13 +45,18 @@ start(#scene{spheres = Spheres, initial = Initial, duration = End} = Scene, Opts
     case supervisor:start_child(rw_sims_sup, [Scene, NBuckets]) of
         {ok, Sup} ->
             #{tables := TablesPid, gvt := Gvt, buckets := Buckets, bodies := BodySup} = rw_sim_sup:children(Sup),
-            #{records := Records, counts := Counts, ring := Ring} = rw_sim_tables:tables(TablesPid),
+            #{records := Records, counts := Counts, ring := Ring, plans := Plans, owners := Owners} =
+                rw_sim_tables:tables(TablesPid),
+            Groups = maps:get(groups, Opts, true),
             Sim = #sim{scene = Scene, n = length(Spheres), end_t = End, buckets = Buckets, gvt = Gvt,
                        records = Records, counts = Counts, ring = Ring,
                        stats = counters:new(length(?STAT_NAMES), [write_concurrency]),
                        profile = maps:get(profile, Opts, false),
                        lvts = atomics:new(lvt_slot(lists:max([0 | [I || #sphere{idx = I} <- Spheres]])), [{signed, false}]),
-                       gvt_now = new_gvt()},
+                       gvt_now = new_gvt(),
+                       period = case Groups of true -> period(Scene); false -> 0 end,
+                       group_max = maps:get(group_max, Opts, default_group_max()),
+                       plans = Plans, owners = Owners},
             %% every body holds the simulation record: not the whole scene's
             %% bodies, which it never reads (a copy per body fills the heaps)
             BodySim = Sim#sim{scene = Scene#scene{spheres = [], initial = []}},

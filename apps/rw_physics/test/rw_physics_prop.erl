@@ -14,7 +14,8 @@
          prop_cylinder_depth_along_normal/0, prop_swept_toi/0,
          prop_degenerate_input/0, prop_quat_integrate/0, prop_free_flight/0,
          prop_respond_is_ordered_fold/0, prop_container_is_six_walls/0,
-         prop_fixture_box_skips_only_misses/0, prop_fixture_then_pair_energy/0]).
+         prop_fixture_box_skips_only_misses/0, prop_fixture_then_pair_energy/0,
+         prop_island_equals_all_pairs/0]).
 %% generators, for use from a shell: proper_gen:pick(rw_physics_prop:pair_case())
 -export([position/0, far_vec/0, vec/0, direction/0, quat/0, sphere/1, model/0, state/1, pair_case/0,
          pair_case/1, fixture_probe/0]).
@@ -707,3 +708,119 @@ prop_respond_is_ordered_fold() ->
                         Got = rw_dynamics:respond(#st{p = rw_vec:zero(), v = V, w = W}, Effects),
                         ?WHENFAIL(report("respond ~p, fold ~p", [Got, Fold]), Got =:= Fold)
                     end))).
+
+%%% ------------------------------------------------------------------
+%%% Properties: islands
+%%% ------------------------------------------------------------------
+
+%% rw_island steps a cluster of spheres exactly as a test of every pair
+%% does, substep after substep: with and without CCD and gravity, for
+%% piles, near misses and members far apart (its neighbour list is rebuilt
+%% when members move, relative to the first one, by more than half its
+%% skin), around the origin and around 1e9 m, with fixtures and with
+%% effects of contacts outside the island.
+prop_island_equals_all_pairs() ->
+    ?FORALL(Case, island_case(),
+            ?SAFE(begin
+                {M, Spheres, States, Fixtures, External, Steps} = Case,
+                Island = rw_island:new(M, Spheres, Fixtures),
+                Bodies = list_to_tuple(lists:keysort(#sphere.idx, Spheres)),
+                Got = island_run(Steps, Island, list_to_tuple(States), External, []),
+                Expected = all_pairs_run(Steps, M, Bodies, Fixtures, list_to_tuple(States), External, []),
+                ?WHENFAIL(report("first difference at substep ~p", [first_difference(Got, Expected, 0)]),
+                          Got =:= Expected)
+            end)).
+
+island_run(0, _Island, _States, _External, Acc) -> lists:reverse(Acc);
+island_run(K, Island, States, External, Acc) ->
+    {Posts, Next, Island1} = rw_island:step(Island, States, External),
+    island_run(K - 1, Island1, Next, External, [{Posts, Next} | Acc]).
+
+%% The reference's way, every pair in canonical order, fixtures first.
+all_pairs_run(0, _M, _Bodies, _Fixtures, _States, _External, Acc) -> lists:reverse(Acc);
+all_pairs_run(K, M, Bodies, Fixtures, States, External, Acc) ->
+    N = tuple_size(Bodies),
+    Ks = lists:seq(1, N),
+    Fixed = [rw_dynamics:fixture_effects(M, element(I, Bodies), element(I, States), Fixtures) || I <- Ks],
+    Seen = list_to_tuple([rw_dynamics:after_fixtures(element(I, States), F) || {I, F} <- lists:zip(Ks, Fixed)]),
+    Disp = fun(I) -> rw_integrate:free_displacement(M, element(I, States)) end,
+    Pairs = lists:append(
+              [begin
+                   #sphere{idx = IA, radius = RA} = SA = element(A, Bodies),
+                   #sphere{idx = IB, radius = RB} = SB = element(B, Bodies),
+                   #st{p = PA} = element(A, States), #st{p = PB} = element(B, States),
+                   C = case M#model.ccd of
+                           false -> rw_narrow:sphere_sphere(PA, RA, PB, RB);
+                           true -> rw_narrow:swept_sphere_sphere(PA, Disp(A), RA, PB, Disp(B), RB)
+                       end,
+                   case C of
+                       none -> [];
+                       _ ->
+                           {EA, EB} = rw_response:pair(M, SA, element(A, Seen), SB, element(B, Seen), C),
+                           [{A, {{IB, 0}, EA}}, {B, {{IA, 0}, EB}}]
+                   end
+               end || A <- Ks, B <- Ks, A < B]),
+    Outside = [{I, Keyed} || I <- Ks, {Idx, Keyed} <- External, Idx =:= (element(I, Bodies))#sphere.idx],
+    Posts = list_to_tuple(
+              [begin
+                   Mine = lists:keysort(1, F ++ [Keyed || {J, Keyed} <- Pairs ++ Outside, J =:= I]),
+                   rw_dynamics:respond(element(I, States), [E || {_, E} <- Mine])
+               end || {I, F} <- lists:zip(Ks, Fixed)]),
+    Next = list_to_tuple([begin
+                              {V, W, U} = element(I, Posts),
+                              rw_integrate:advance(M, element(I, States), V, W, U)
+                          end || I <- Ks]),
+    all_pairs_run(K - 1, M, Bodies, Fixtures, Next, External, [{Posts, Next} | Acc]).
+
+first_difference([X | A], [X | B], K) -> first_difference(A, B, K + 1);
+first_difference([X | _], [Y | _], K) -> {K, X, Y};
+first_difference(_, _, K) -> {K, length_differs}.
+
+%% {Model, Spheres, States, Fixtures, External, Substeps}: 2-12 spheres
+%% (idx 10, 12, 14, ...) packed in a cluster at some spacing (overlapping,
+%% touching or apart), moving slowly, fast, or apart from each other.
+island_case() ->
+    ?LET({M0, Ccd, Gravity, N, Centre, Spacing, Speed, Fixtures, Steps},
+         {model(), boolean(), boolean(), range(2, 12), position(), oneof([0.7, 0.95, 1.0, 1.3, 3.0]),
+          oneof([0.0, 0.1, 2.0, 50.0]), island_fixtures(), oneof([10, 40])},
+         ?LET({Radii, Velocities, Jitter, Spins, Pushes},
+              {vector(N, oneof([0.1, 0.2, float(0.05, 0.3)])), vector(N, speed_vec(Speed)),
+               vector(N, speed_vec(0.05)), vector(N, spin()), list({range(0, N - 1), velocity()})},
+              begin
+                  M = M0#model{ccd = Ccd, dt = 0.001,
+                               gravity = case Gravity of true -> {0.0, -9.81, 0.0}; false -> undefined end},
+                  Idxs = [10 + 2 * K || K <- lists:seq(0, N - 1)],
+                  Spheres = [rw_shape:sphere(I, integer_to_binary(I), R, 1.0) || {I, R} <- lists:zip(Idxs, Radii)],
+                  Grid = [{X, Y, Z} || X <- [0, 1, 2], Y <- [0, 1, 2], Z <- [0, 1, 2]],
+                  States = [begin
+                                {GX, GY, GZ} = lists:nth(K, Grid),
+                                Off = {GX * Spacing * 0.4, GY * Spacing * 0.4, GZ * Spacing * 0.4},
+                                P = rw_vec:add(rw_vec:add(Centre, Off), lists:nth(K, Jitter)),
+                                V = lists:nth(K, Velocities),
+                                case M#model.rotation of
+                                    true -> #st{p = P, v = V, q = rw_quat:identity(), w = lists:nth(K, Spins)};
+                                    false -> #st{p = P, v = V}
+                                end
+                            end || K <- lists:seq(1, N)],
+                  Placed = [rw_shape:fixture(Idx, integer_to_binary(Idx), shift(Shape, Centre))
+                            || {Idx, Shape} <- lists:zip(lists:sublist([1, 3, 5], length(Fixtures)), Fixtures)],
+                  External = [{lists:nth(K + 1, Idxs), {{1000 + K, 0}, {Dv, case M#model.rotation of
+                                                                              true -> {0.0, 0.1, 0.0};
+                                                                              false -> undefined
+                                                                          end, {0.0, 0.0, 0.0}}}}
+                              || {K, Dv} <- lists:ukeysort(1, Pushes)],
+                  {M, Spheres, States, Placed, External, Steps}
+              end)).
+
+%% Fixtures near the cluster (in the cluster's frame).
+island_fixtures() ->
+    ?LET(Kinds, list(oneof([floor, post, cage])),
+         [case Kind of
+              floor -> {plane, {0.0, 1.0, 0.0}, -0.05};
+              post -> {cylinder, {0.4, 0.4, 0.4}, {0.0, 0.0, 1.0}, 0.15, 2.0};
+              cage -> {box, {0.4, 0.4, 0.4}, {1.0, 1.0, 1.0}, hollow}
+          end || Kind <- lists:sublist(Kinds, 3)]).
+
+shift({plane, N, Off}, C) -> {plane, N, Off + rw_vec:dot(N, C)};
+shift({cylinder, P, A, R, H}, C) -> {cylinder, rw_vec:add(P, C), A, R, H};
+shift({box, P, E, K}, C) -> {box, rw_vec:add(P, C), E, K}.

@@ -1,0 +1,207 @@
+%% An island: spheres stepped together, one substep at a time, the way the
+%% sequential reference steps every body: contacts with fixtures first, then
+%% the contacts among the members, plus the effects of contacts with bodies
+%% outside the island (given by the caller), summed per body in canonical
+%% order of partner and integrated. Every contact among members is found
+%% here, so members exchange no messages; a Time Warp entity that holds
+%% bodies in persistent contact steps them with this.
+%%
+%% Contacts among members come from a neighbour list (a Verlet list): the
+%% pairs whose centres were closer than the sum of their radii plus a skin
+%% when the list was built. The list stays valid while no member has moved
+%% more than half the skin away from where it was then, measured relative
+%% to the first member's own move (a pile falling as one keeps its list);
+%% with CCD, the spread of the substep's displacements counts too. A pair
+%% not on a valid list is then farther apart than the sum of their radii
+%% by a margin far above rounding, so the list finds exactly the contacts
+%% a test of every pair finds.
+-module(rw_island).
+-include("rw_physics.hrl").
+-export([new/3, size/1, posts/3, step/3, alone/5]).
+-export_type([island/0, external/0]).
+
+%% The effect of a contact with a body outside the island, for the member
+%% whose idx is given, under its canonical key.
+-type external() :: {MemberIdx :: non_neg_integer(), rw_dynamics:keyed_effect()}.
+
+-record(island, {
+    model :: #model{},
+    spheres :: tuple(),                                 % #sphere{}, ascending idx
+    pos :: #{non_neg_integer() => pos_integer()},       % member idx => position
+    fixtures :: [#fixture{}],
+    skin :: float(),
+    %% the neighbour list: positions when it was built, how far a member
+    %% may move from there, and the pairs {A, B} (positions, A < B) that
+    %% may touch while no member has moved farther
+    anchors = undefined :: tuple() | undefined,
+    limit = 0.0 :: float(),
+    pairs = [] :: [{pos_integer(), pos_integer()}]
+}).
+-opaque island() :: #island{}.
+
+-spec new(#model{}, [#sphere{}, ...], [#fixture{}]) -> island().
+new(Model, Spheres0, Fixtures) ->
+    Spheres = lists:keysort(#sphere.idx, Spheres0),
+    RMax = lists:max([R || #sphere{radius = R} <- Spheres]),
+    #island{model = Model, spheres = list_to_tuple(Spheres), fixtures = Fixtures,
+            pos = maps:from_list(lists:zip([I || #sphere{idx = I} <- Spheres], lists:seq(1, length(Spheres)))),
+            skin = 0.5 * RMax}.
+
+-spec size(island()) -> pos_integer().
+size(#island{spheres = S}) -> tuple_size(S).
+
+%% Post-response velocities ({V, W, U}, as rw_dynamics:respond/2) of every
+%% member at this substep, from their pre-response States (a tuple in idx
+%% order) and the External effects.
+-spec posts(island(), tuple(), [external()]) -> {tuple(), island()}.
+posts(#island{model = M, spheres = {S}, fixtures = Fixtures} = I, {St}, External) ->
+    {{alone(M, S, St, Fixtures, External)}, I};
+posts(#island{model = M, spheres = Spheres, fixtures = Fixtures, pos = Pos} = I0, States, External) ->
+    N = tuple_size(Spheres),
+    Disps = displacements(M, States),
+    {Pairs, I} = neighbours(I0, States, Disps),
+    Fixed = list_to_tuple([rw_dynamics:fixture_effects(M, element(K, Spheres), element(K, States), Fixtures)
+                           || K <- lists:seq(1, N)]),
+    Seen = list_to_tuple([rw_dynamics:after_fixtures(element(K, States), element(K, Fixed))
+                          || K <- lists:seq(1, N)]),
+    Outside = [{maps:get(Idx, Pos), Keyed} || {Idx, Keyed} <- External],
+    Found = pair_effects(Pairs, M, Spheres, States, Seen, Disps, Outside),
+    ByMember = by_member(1, N, lists:sort(Found), []),
+    Posts = list_to_tuple([respond(element(K, States), element(K, Fixed), Mine)
+                           || {K, Mine} <- lists:zip(lists:seq(1, N), ByMember)]),
+    {Posts, I}.
+
+%% The posts at this substep, and the members' next pre-response states.
+-spec step(island(), tuple(), [external()]) -> {tuple(), tuple(), island()}.
+step(#island{model = M, spheres = {S}, fixtures = Fixtures} = I, {St}, External) ->
+    %% (most entities are one body: this is the hot path of free flight)
+    {V, W, U} = Post = alone(M, S, St, Fixtures, External),
+    {{Post}, {rw_integrate:advance(M, St, V, W, U)}, I};
+step(#island{model = M} = I0, States, External) ->
+    {Posts, I} = posts(I0, States, External),
+    Next = list_to_tuple([begin
+                              {V, W, U} = element(K, Posts),
+                              rw_integrate:advance(M, element(K, States), V, W, U)
+                          end || K <- lists:seq(1, tuple_size(States))]),
+    {Posts, Next, I}.
+
+%% The post-response velocities of a body on its own (an island of one,
+%% the most common entity): its fixtures and the outside.
+-spec alone(#model{}, #sphere{}, #st{}, [#fixture{}], [external()]) ->
+          {rw_vec:vec(), rw_vec:vec() | undefined, rw_vec:vec()}.
+alone(M, S, St, Fixtures, []) -> respond(St, rw_dynamics:fixture_effects(M, S, St, Fixtures), []);
+alone(M, S, St, Fixtures, External) ->
+    respond(St, rw_dynamics:fixture_effects(M, S, St, Fixtures), lists:keysort(1, [Keyed || {_, Keyed} <- External])).
+
+%% Sum a member's effects in canonical order: Fixed and Others are each
+%% sorted by key, and keys are unique (a fixture's feature or a partner).
+respond(St, [], []) -> rw_dynamics:respond(St, []);
+respond(St, [{_, E}], []) -> rw_dynamics:respond(St, [E]);
+respond(St, [], [{_, E}]) -> rw_dynamics:respond(St, [E]);
+respond(St, Fixed, Others) -> rw_dynamics:respond(St, [E || {_, E} <- lists:merge(Fixed, Others)]).
+
+%%% Contacts among members
+
+%% The effects of every contact among Pairs, added to Acc, as
+%% {Position, {Key, Effect}}.
+pair_effects([], _M, _Spheres, _States, _Seen, _Disps, Acc) -> Acc;
+pair_effects([{A, B} | Rest], M, Spheres, States, Seen, Disps, Acc) ->
+    #sphere{idx = IA, radius = RA} = SA = element(A, Spheres),
+    #sphere{idx = IB, radius = RB} = SB = element(B, Spheres),
+    #st{p = PA} = element(A, States),
+    #st{p = PB} = element(B, States),
+    Contact = case Disps of
+                  undefined -> rw_narrow:sphere_sphere(PA, RA, PB, RB);
+                  _ -> rw_narrow:swept_sphere_sphere(PA, element(A, Disps), RA, PB, element(B, Disps), RB)
+              end,
+    case Contact of
+        none -> pair_effects(Rest, M, Spheres, States, Seen, Disps, Acc);
+        _ ->
+            {EA, EB} = rw_response:pair(M, SA, element(A, Seen), SB, element(B, Seen), Contact),
+            pair_effects(Rest, M, Spheres, States, Seen, Disps, [{A, {{IB, 0}, EA}}, {B, {{IA, 0}, EB}} | Acc])
+    end.
+
+%% The sorted {Position, {Key, Effect}} list as one sorted [{Key, Effect}]
+%% list per position K..N.
+by_member(K, N, _Found, Acc) when K > N -> lists:reverse(Acc);
+by_member(K, N, Found, Acc) ->
+    {Mine, Rest} = take(K, Found, []),
+    by_member(K + 1, N, Rest, [Mine | Acc]).
+
+take(K, [{K, Keyed} | Rest], Acc) -> take(K, Rest, [Keyed | Acc]);
+take(_K, Rest, Acc) -> {lists:reverse(Acc), Rest}.
+
+%% With CCD, each member's free displacement over the substep.
+displacements(#model{ccd = false}, _States) -> undefined;
+displacements(M, States) -> list_to_tuple([rw_integrate:free_displacement(M, St) || St <- tuple_to_list(States)]).
+
+%%% The neighbour list
+
+%% The pairs to test at this substep: those of the list while it is valid
+%% for States (rebuilt when it is not). A list that is not valid even when
+%% just built (with CCD, displacements that differ by more than half the
+%% skin; coordinates so large that the rounding margin exceeds it) is not
+%% used: every pair is tested, and the next substep builds again.
+neighbours(#island{anchors = undefined} = I, States, Disps) -> fresh(I, States, Disps);
+neighbours(#island{anchors = Anchors, limit = Limit, pairs = Pairs} = I, States, Disps) ->
+    case valid(States, Anchors, Disps, Limit) of
+        true -> {Pairs, I};
+        false -> fresh(I, States, Disps)
+    end.
+
+fresh(I0, States, Disps) ->
+    #island{anchors = Anchors, limit = Limit, pairs = Pairs} = I = build(I0, States),
+    case valid(States, Anchors, Disps, Limit) of
+        true -> {Pairs, I};
+        false ->
+            N = tuple_size(States),
+            {[{A, B} || A <- lists:seq(1, N), B <- lists:seq(A + 1, N)], I#island{anchors = undefined}}
+    end.
+
+%% Every member within Limit of its anchor, relative to the first member's
+%% move, adding (with CCD) how far its displacement differs from the first
+%% member's.
+valid(States, Anchors, Disps, Limit) ->
+    #st{p = P1} = element(1, States),
+    Drift = rw_vec:sub(P1, element(1, Anchors)),
+    within(tuple_size(States), States, Anchors, Drift, Disps, Limit).
+
+within(0, _States, _Anchors, _Drift, _Disps, _Limit) -> true;
+within(K, States, Anchors, Drift, Disps, Limit) ->
+    #st{p = P} = element(K, States),
+    Moved = rw_vec:len(rw_vec:sub(rw_vec:sub(P, element(K, Anchors)), Drift)),
+    Swept = case Disps of
+                undefined -> 0.0;
+                _ -> rw_vec:len(rw_vec:sub(element(K, Disps), element(1, Disps)))
+            end,
+    case Moved + Swept =< Limit of
+        true -> within(K - 1, States, Anchors, Drift, Disps, Limit);
+        false -> false
+    end.
+
+%% Sweep along x: members sorted by x, each paired with those after it
+%% that are closer along x than the largest reach, then tested in full.
+build(#island{spheres = Spheres, skin = Skin} = I, States) ->
+    N = tuple_size(Spheres),
+    Anchors = list_to_tuple([P || #st{p = P} <- tuple_to_list(States)]),
+    ByX = lists:sort([{X, K} || K <- lists:seq(1, N), {X, _, _} <- [element(K, Anchors)]]),
+    RMax = lists:max([R || #sphere{radius = R} <- tuple_to_list(Spheres)]),
+    Pairs = sweep(ByX, Spheres, Anchors, Skin, RMax, []),
+    Scale = lists:max([rw_vec:max_abs(P) || P <- tuple_to_list(Anchors)]) + RMax + Skin,
+    %% half the skin, less a margin far above the rounding of the positions
+    Limit = 0.5 * Skin - 1.0e-9 * Scale,
+    I#island{anchors = Anchors, pairs = Pairs, limit = Limit}.
+
+sweep([], _Spheres, _Anchors, _Skin, _RMax, Acc) -> Acc;
+sweep([{X, A} | Rest], Spheres, Anchors, Skin, RMax, Acc) ->
+    #sphere{radius = RA} = element(A, Spheres),
+    Reach = RA + RMax + Skin,
+    PA = element(A, Anchors),
+    Close = [{min(A, B), max(A, B)}
+             || {_, B} <- lists:takewhile(fun({XB, _}) -> XB - X < Reach end, Rest),
+                begin
+                    #sphere{radius = RB} = element(B, Spheres),
+                    S = RA + RB + Skin,
+                    rw_vec:len2(rw_vec:sub(element(B, Anchors), PA)) < S * S
+                end],
+    sweep(Rest, Spheres, Anchors, Skin, RMax, Close ++ Acc).
