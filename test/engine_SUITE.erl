@@ -10,7 +10,7 @@
 -export([all/0, groups/0, suite/0, init_per_suite/1, end_per_suite/1]).
 -export([scenarios_equal/1, strides_and_buckets_equal/1, random_scenes_equal/1,
          random_delays_terminate_and_equal/1, watchdog_names_stuck_body/1,
-         no_leaks_after_100_runs/1, escript_frames_identical/1, frames_api/1]).
+         no_leaks_after_100_runs/1, escript_frames_identical/1, frames_api/1, contact_groups/1]).
 
 suite() -> [{timetrap, {minutes, 15}}].
 
@@ -18,7 +18,7 @@ all() -> [{group, equality}, {group, liveness}, {group, lifecycle}].
 
 groups() ->
     [{equality, [], [scenarios_equal, strides_and_buckets_equal, random_scenes_equal,
-                     escript_frames_identical]},
+                     escript_frames_identical, contact_groups]},
      {liveness, [], [random_delays_terminate_and_equal, watchdog_names_stuck_body]},
      {lifecycle, [], [no_leaks_after_100_runs, frames_api]}].
 
@@ -112,29 +112,40 @@ strides_and_buckets_equal(_Config) ->
     {comment, io_lib:format("~b configurations", [length(Configs)])}.
 
 random_scenes_equal(_Config) ->
-    Prop = ?FORALL({SceneMap, Stride, Buckets, Sched}, {scene_map(), stride(), buckets(), oneof([1, 2])},
+    Prop = ?FORALL({SceneMap, Stride, Buckets, Sched, Groups}, {scene_map(), stride(), buckets(), oneof([1, 2]), group_options()},
                    case rw_scene:from_map(SceneMap#{<<"stride_ms">> => Stride * maps:get(<<"substep_ms">>, SceneMap)}, #{}) of
                        {error, _} ->
                            true;   % the generator can ask for a packing that cannot be placed
                        {ok, Scene} ->
-                           same_as_reference(Scene, Sched, #{buckets => Buckets},
-                                             io_lib:format("scene ~p~nstride ~p, ~p buckets, ~p schedulers",
-                                                           [SceneMap, Stride, Buckets, Sched]))
+                           same_as_reference(Scene, Sched, Groups#{buckets => Buckets},
+                                             io_lib:format("scene ~p~nstride ~p, ~p buckets, ~p schedulers, ~p",
+                                                           [SceneMap, Stride, Buckets, Sched, Groups]))
                    end),
     true = proper:quickcheck(Prop, [{numtests, 100}, {to_file, user}, long_result]).
 
 %% A property: the Time Warp frames of Scene equal the reference's; on
 %% failure print What and the first difference (or the exception).
+%% PropEr prints how many runs regrouped (contact groups changed).
 same_as_reference(Scene, Sched, Opts, What) ->
     {Ref, _} = frames(reference, Scene, #{}),
-    Tw = try with_schedulers(Sched, fun() -> frames(timewarp, Scene, Opts) end) of
-             {Frames, _} -> Frames
-         catch C:E -> {C, E}
-         end,
-    ?WHENFAIL(ct:pal("~s~nfirst diff ~p", [What, first_diff(Ref, Tw)]), Ref =:= Tw).
+    {Tw, Regrouped} = try with_schedulers(Sched, fun() -> frames(timewarp, Scene, Opts) end) of
+                          {Frames, #{regroups := 0}} -> {Frames, no_regroups};
+                          {Frames, #{regroups := _}} -> {Frames, regrouped}
+                      catch C:E -> {{C, E}, crashed}
+                      end,
+    collect(Regrouped, ?WHENFAIL(ct:pal("~s~nfirst diff ~p", [What, first_diff(Ref, Tw)]), Ref =:= Tw)).
 
 stride() -> oneof([1, 2, 8, 64, 256]).
 buckets() -> oneof([1, 3, 16, 64]).
+
+%% Contact groups: off (one entity per body, as the paper), the default, or
+%% small groups of bodies near each other (eager: however they move) that
+%% regroup at every stride or every other one.
+group_options() ->
+    oneof([#{groups => false}, #{},
+           #{group_max => 2, regroup_every => 1, grouping => eager},
+           #{group_max => 3, regroup_every => 2, grouping => eager},
+           #{group_max => 64, regroup_every => 1, grouping => eager}]).
 
 %% Random small scenes: spheres with random velocities in a container,
 %% with or without gravity, rotation, friction, CCD, any integrator, at
@@ -184,19 +195,44 @@ escript_frames_identical(Config) ->
      end || S <- ["1", "2"], St <- ["1", "64"]],
     ok.
 
+%% Bodies in persistent contact (Cylinders, once the spheres pile up on
+%% the cylinders) are stepped as groups: groups form, the frames equal the
+%% reference's whatever their size, and their contacts no longer cost an
+%% event each.
+contact_groups(_Config) ->
+    File = rw_test_lib:scenario("cylinders_200.json"),
+    {ok, Scene} = rigidwarp:load(File, #{until => 1000}),
+    {Ref, _} = frames(reference, Scene, #{}),
+    {Alone, #{events := EventsAlone, regroups := 0}} = frames(timewarp, Scene, #{groups => false}),
+    assert_same("one entity per body", Ref, Alone),
+    Runs = [{Opts, with_schedulers(S, fun() -> frames(timewarp, Scene, Opts) end)}
+            || {Opts, S} <- [{#{}, 2}, {#{group_max => 2}, 1}, {#{group_max => 5, regroup_every => 1}, 2}]],
+    [begin
+         assert_same(io_lib:format("groups ~p", [Opts]), Ref, Frames),
+         ct:pal("~p: ~b regroups, ~b events (one entity per body: ~b)", [Opts, Regroups, Events, EventsAlone]),
+         ?assert(Regroups > 0)
+     end || {Opts, {Frames, #{regroups := Regroups, events := Events}}} <- Runs],
+    [{_, {_, #{events := EventsDefault}}} | _] = Runs,
+    ?assert(EventsDefault * 2 < EventsAlone),
+    ok.
+
 %%% Liveness
 
 %% Random pauses before every TVHT operation and every message shuffle how
 %% bodies interleave: runs must still end, with the same frames.
 random_delays_terminate_and_equal(_Config) ->
-    Prop = ?FORALL({SceneMap, Stride, Seed, MaxMs}, {scene_map(), stride(), range(1, 100000), range(0, 2)},
+    %% groups change every stride or two, so that handovers meet the delays
+    Prop = ?FORALL({SceneMap, Stride, Seed, MaxMs, Groups},
+                   {scene_map(), oneof([1, 2, 8]), range(1, 100000), range(0, 2),
+                    oneof([#{groups => false}, #{group_max => 2, regroup_every => 1, grouping => eager},
+                           #{group_max => 4, regroup_every => 2, grouping => eager}])},
                    case rw_scene:from_map(SceneMap#{<<"stride_ms">> => Stride * maps:get(<<"substep_ms">>, SceneMap),
-                                                    <<"duration_ms">> => 60 * maps:get(<<"substep_ms">>, SceneMap)}, #{}) of
+                                                    <<"duration_ms">> => 120 * maps:get(<<"substep_ms">>, SceneMap)}, #{}) of
                        {error, _} -> true;
                        {ok, Scene} ->
-                           same_as_reference(Scene, 2, #{delay => {Seed, MaxMs}, buckets => 4},
-                                             io_lib:format("scene ~p~nstride ~p, delay seed ~p up to ~p ms",
-                                                           [SceneMap, Stride, Seed, MaxMs]))
+                           same_as_reference(Scene, 2, Groups#{delay => {Seed, MaxMs}, buckets => 4},
+                                             io_lib:format("scene ~p~nstride ~p, delay seed ~p up to ~p ms, ~p",
+                                                           [SceneMap, Stride, Seed, MaxMs, Groups]))
                    end),
     true = proper:quickcheck(Prop, [{numtests, 40}, {to_file, user}, long_result]).
 

@@ -15,6 +15,8 @@
                          until => number(), substep => number(),
                          stride => number(), frame_ms => number(),
                          integrator => rw_integrate:integrator(), ccd => boolean(),
+                         %% contact groups (timewarp): off runs one entity per body, as the paper
+                         groups => boolean(), group_max => pos_integer(),
                          frames => file:filename(),
                          on_frame => fun((rw_reference:frame()) -> any()),
                          on_progress => fun((map()) -> any())}.
@@ -24,7 +26,9 @@
 -export_type([sim/0]).
 
 -define(OPTION_KEYS, [engine, until, substep, stride, frame_ms, integrator, ccd, frames, on_frame, on_progress,
-                      buckets, schedulers, watchdog_ms]).
+                      buckets, schedulers, watchdog_ms, groups, group_max]).
+%% The options the Time Warp engine itself takes.
+-define(TIMEWARP_KEYS, [buckets, watchdog_ms, groups, group_max]).
 
 -spec help() -> ok.
 help() ->
@@ -55,7 +59,7 @@ start(File, Opts) ->
         timewarp ->
             case load(File, Opts) of
                 {ok, Scene} ->
-                    case rw_timewarp:start(Scene, (maps:with([buckets, watchdog_ms], Opts))#{owner => self()}) of
+                    case rw_timewarp:start(Scene, (maps:with(?TIMEWARP_KEYS, Opts))#{owner => self()}) of
                         {ok, Sim} -> {ok, Sim};
                         {error, Reason} -> {error, describe_failure(Reason)}
                     end;
@@ -218,7 +222,7 @@ run_engine(reference, Scene, Sink, Opts) ->
     rw_reference:run(Scene, #{on_frame => OnFrame});
 run_engine(timewarp, Scene, Sink, Opts) ->
     with_schedulers(maps:get(schedulers, Opts, undefined),
-                    fun() -> rw_timewarp:run(Scene, (maps:with([buckets, watchdog_ms, on_progress], Opts))#{on_frame => Sink}) end).
+                    fun() -> rw_timewarp:run(Scene, (maps:with([on_progress | ?TIMEWARP_KEYS], Opts))#{on_frame => Sink}) end).
 
 with_schedulers(undefined, Fun) -> Fun();
 with_schedulers(N, Fun) ->
@@ -274,7 +278,8 @@ check_options(Opts) ->
 
 check_values([]) -> ok;
 check_values([{engine, E} | Rest]) when E =:= reference; E =:= timewarp -> check_values(Rest);
-check_values([{K, V} | Rest]) when (K =:= buckets orelse K =:= schedulers orelse K =:= watchdog_ms),
+check_values([{K, V} | Rest]) when (K =:= buckets orelse K =:= schedulers orelse K =:= watchdog_ms
+                                    orelse K =:= group_max),
                                    is_integer(V), V > 0, V =< 1 bsl 20 -> check_values(Rest);
 check_values([{K, V} | Rest]) when (K =:= until orelse K =:= substep orelse K =:= stride orelse
                                     K =:= frame_ms), is_number(V), V > 0 -> check_values(Rest);
@@ -284,7 +289,7 @@ check_values([{integrator, I} | Rest]) ->
         false -> {error, lists:flatten(io_lib:format("bad value for option integrator: ~p (known: ~p)",
                                                      [I, rw_integrate:integrators()]))}
     end;
-check_values([{ccd, C} | Rest]) when is_boolean(C) -> check_values(Rest);
+check_values([{K, C} | Rest]) when (K =:= ccd orelse K =:= groups), is_boolean(C) -> check_values(Rest);
 check_values([{frames, F} | Rest]) when is_list(F); is_binary(F) -> check_values(Rest);
 check_values([{K, F} | Rest]) when (K =:= on_frame orelse K =:= on_progress), is_function(F, 1) ->
     check_values(Rest);

@@ -205,11 +205,12 @@ advance_over(#s{complete = C, sim = #sim{end_t = End} = Sim} = S) ->
 %% At a regroup point X, plan the groups for X + period from the states
 %% committed at X (still in the records table) and write who moves then.
 regroup(X, #s{sim = #sim{period = P, end_t = End}} = S) when P =:= 0; X rem P =/= 0; X + P >= End -> S;
-regroup(X, #s{sim = #sim{period = P, group_max = Max, records = Records, plans = Plans, stats = Stats},
+regroup(X, #s{sim = #sim{period = P, group_max = Max, grouping = Mode, records = Records, plans = Plans,
+                         stats = Stats},
               radii = Radii, leaders = Old, pids = Pids} = S) ->
     Bodies = [{I, maps:get(I, Radii), Pos, V}
               || {I, {_, Pos, V, _, _}} <- ets:select(Records, [{{{X, '$1'}, '$2'}, [], [{{'$1', '$2'}}]}])],
-    New = rw_regroup:plan(Bodies, Old, Max),
+    New = rw_regroup:plan(Bodies, Old, Max, Mode),
     Moves = rw_regroup:moves(Old, New, Pids),
     ets:insert(Plans, [{{X + P, I}, Move} || {I, Move} <- maps:to_list(Moves)]),
     %% plans before the previous point are done with

@@ -16,11 +16,14 @@
 %%           split and re-form at every jostle);
 %% and holds at most Max bodies (a union that would pass it is skipped, in
 %% a fixed order), so that groups remain many enough to run in parallel.
+%% Tests plan eagerly instead: every pair closer than 3 x the sum of their
+%% radii joins, however it moves, so groups form and break up at almost
+%% every regroup point.
 %% A group's leader is its lowest idx. Grouping never changes the physics,
 %% only which process computes it.
 -module(rw_regroup).
--export([plan/3, moves/3]).
--export_type([body/0, leaders/0, move/0]).
+-export([plan/3, plan/4, moves/3]).
+-export_type([body/0, leaders/0, move/0, mode/0]).
 
 %% A body's committed state at the regroup point: idx, radius, position,
 %% post-response velocity.
@@ -31,16 +34,21 @@
 %% new leaders ([{Member, NewLeader, NewLeaderPid}]) and/or gather a group
 %% from the old leaders of its new members.
 -type move() :: #{send => [{non_neg_integer(), non_neg_integer(), pid()}], gather => [non_neg_integer()]}.
+-type mode() :: persistent | eager.
 
 -define(JOIN, 1.02).
 -define(STAY, 1.25).
 -define(JOIN_SPEED, 0.125).          % relative normal speed, sums of radii per second
+-define(EAGER, 3.0).
 
 %% The groups for the next period, from Bodies and the current groups.
 -spec plan([body()], leaders(), pos_integer()) -> leaders().
-plan(Bodies, Old, Max) ->
+plan(Bodies, Old, Max) -> plan(Bodies, Old, Max, persistent).
+
+-spec plan([body()], leaders(), pos_integer(), mode()) -> leaders().
+plan(Bodies, Old, Max, Mode) ->
     ByIdx = maps:from_list([{I, B} || {I, _, _, _} = B <- Bodies]),
-    {Stay, Join} = edges(Bodies, Old),
+    {Stay, Join} = edges(Bodies, Old, Mode),
     Uf0 = maps:from_list([{I, {I, 1}} || {I, _, _, _} <- Bodies]),
     Uf1 = lists:foldl(fun({A, B}, U) -> union(A, B, Max, U) end, Uf0, Stay),
     Uf = lists:foldl(fun({_, {A, B}}, U) -> union(A, B, Max, U) end, Uf1, lists:sort(Join)),
@@ -81,10 +89,13 @@ is_group([L | _] = G, Groups) -> maps:get(L, Groups, none) =:= G.
 %% Pairs close enough to stay together or to join: bodies sorted by x,
 %% each tested against those after it that are closer along x than the
 %% largest reach.
-edges(Bodies, Old) ->
+edges(Bodies, Old, persistent) ->
     RMax = lists:max([0.0 | [R || {_, R, _, _} <- Bodies]]),
     ByX = lists:sort([{X, B} || {_, _, {X, _, _}, _} = B <- Bodies]),
-    sweep(ByX, 2.0 * RMax * ?STAY, Old, [], []).
+    sweep(ByX, 2.0 * RMax * ?STAY, Old, [], []);
+edges(Bodies, _Old, eager) ->
+    {[], [{Dist, {IA, IB}} || {IA, RA, PA, _} <- Bodies, {IB, RB, PB, _} <- Bodies, IA < IB,
+                              Dist <- [rw_vec:len(rw_vec:sub(PB, PA))], Dist < ?EAGER * (RA + RB)]}.
 
 sweep([], _Reach, _Old, Stay, Join) -> {Stay, Join};
 sweep([{X, A} | Rest], Reach, Old, Stay, Join) ->

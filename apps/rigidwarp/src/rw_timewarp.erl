@@ -8,6 +8,9 @@
 -type handle() :: #{sup := pid(), gvt := pid(), ring := ets:tid(), sim := #sim{}, started := integer()}.
 -type options() :: #{buckets => pos_integer(), owner => pid(), subscribe => boolean(),
                      groups => boolean(), group_max => pos_integer(),
+                     %% (tests) regroup points this many strides apart, groups of
+                     %% all bodies near each other however they move
+                     regroup_every => pos_integer(), grouping => rw_regroup:mode(),
                      watchdog_ms => pos_integer(), ring_size => pos_integer(), profile => boolean(),
                      delay => {Seed :: integer(), MaxMs :: non_neg_integer()},
                      on_frame => fun((rw_reference:frame()) -> any()),
@@ -54,8 +57,13 @@ start(#scene{spheres = Spheres, initial = Initial, duration = End} = Scene, Opts
                        profile = maps:get(profile, Opts, false),
                        lvts = atomics:new(lvt_slot(lists:max([0 | [I || #sphere{idx = I} <- Spheres]])), [{signed, false}]),
                        gvt_now = new_gvt(),
-                       period = case Groups of true -> period(Scene); false -> 0 end,
+                       period = case {Groups, maps:find(regroup_every, Opts)} of
+                                    {false, _} -> 0;
+                                    {true, {ok, Every}} -> Every * Scene#scene.stride;
+                                    {true, error} -> period(Scene)
+                                end,
                        group_max = maps:get(group_max, Opts, default_group_max()),
+                       grouping = maps:get(grouping, Opts, persistent),
                        plans = Plans, owners = Owners},
             %% every body holds the simulation record: not the whole scene's
             %% bodies, which it never reads (a copy per body fills the heaps)

@@ -16,6 +16,9 @@
       --frame-ms MS          frame interval in ms (default: the scene's frame_ms)
       --integrator NAME      symplectic_euler, verlet or explicit_euler (default: the scene's)
       --ccd on|off           swept (continuous) collision tests (default: the scene's)
+      --groups on|off        timewarp: step bodies in persistent contact as one entity
+                             (default on; off is the paper's one entity per body)
+      --group-max N          timewarp: the most bodies in one contact group (default 64)
       --quiet                no progress line on stderr
 ").
 -define(VALIDATE_HELP,
@@ -68,7 +71,7 @@ exit codes: 0 ok, 1 runtime failure, 2 bad input (the message names the field or
 ").
 
 -define(VALUE_FLAGS, ["--engine", "--schedulers", "--buckets", "--frames", "--until", "--substep",
-                      "--stride", "--frame-ms", "--integrator", "--ccd"]).
+                      "--stride", "--frame-ms", "--integrator", "--ccd", "--groups", "--group-max"]).
 
 -spec main([string()]) -> no_return().
 main(Args) ->
@@ -179,6 +182,10 @@ parse(["--integrator", V | Rest], F, O, Q) ->
 parse(["--ccd", "on" | Rest], F, O, Q) -> parse(Rest, F, O#{ccd => true}, Q);
 parse(["--ccd", "off" | Rest], F, O, Q) -> parse(Rest, F, O#{ccd => false}, Q);
 parse(["--ccd", V | _], _, _, _) -> throw({usage, "--ccd must be on or off, got " ++ V});
+parse(["--groups", "on" | Rest], F, O, Q) -> parse(Rest, F, O#{groups => true}, Q);
+parse(["--groups", "off" | Rest], F, O, Q) -> parse(Rest, F, O#{groups => false}, Q);
+parse(["--groups", V | _], _, _, _) -> throw({usage, "--groups must be on or off, got " ++ V});
+parse(["--group-max", V | Rest], F, O, Q) -> parse(Rest, F, O#{group_max => pos_int("--group-max", V)}, Q);
 parse([[$- | _] = Flag | _], _, _, _) ->
     case lists:member(Flag, ?VALUE_FLAGS) of
         true -> throw({usage, Flag ++ " needs a value"});
