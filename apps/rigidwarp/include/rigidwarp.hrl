@@ -43,7 +43,7 @@
     %% which is a multiple of the stride (0: each body stays on its own)
     period = 0 :: non_neg_integer(),          % ticks
     group_max = 1 :: pos_integer(),           % the most bodies in one group
-    grouping = persistent :: rw_regroup:mode(),   % eager: tests only
+    grouping = persistent :: persistent | eager,   % eager: tests only
     plans :: ets:tid(),                       % {{S, Idx}, rw_regroup:move()}: what body Idx does at S
     owners :: ets:tid()                       % {Idx, Pid}: the entity that steps body Idx
 }).

@@ -462,27 +462,27 @@ timed(Stats, Stage, Fun) ->
 %% The members' states after T up to Last (one list per member, one state
 %% per substep), the post-response velocities at each sync point passed on
 %% the way (to commit), and the island with its neighbour list.
-chain(T, {St}, Last, #d{spheres = {S}} = D, Island) ->
-    {Passed, States} = alone(T, St, Last, S, D, [], []),
+chain(T, {St}, Last, #d{spheres = {_}} = D, Island0) ->
+    {Passed, States, Island} = alone(T, St, Last, D, Island0, [], []),
     {Passed, [States], Island};
 chain(T, States, Last, D, Island0) ->
     {Passed, Tuples, Island} = chain(T, States, Last, D, Island0, [], []),
     {Passed, [[element(K, Sts) || Sts <- Tuples] || K <- lists:seq(1, tuple_size(States))], Island}.
 
 %% A body on its own, the hot path of free flight.
-alone(T, _St, Last, _S, _D, Passed, Acc) when T >= Last ->
-    {lists:reverse(Passed), lists:reverse(Acc)};
-alone(T, St, Last, S, #d{model = M, dt = Dt, fixtures = Fixtures} = D, Passed, Acc) ->
-    {V, W, U} = Post = case D#d.base of
-                           {T, {Base}} -> Base;
-                           _ -> rw_island:alone(M, S, St, Fixtures, external(T, D))
-                       end,
+alone(T, _St, Last, _D, Island, Passed, Acc) when T >= Last ->
+    {lists:reverse(Passed), lists:reverse(Acc), Island};
+alone(T, St, Last, #d{model = M, dt = Dt} = D, Island0, Passed, Acc) ->
+    {{V, W, U} = Post, Island} = case D#d.base of
+                                     {T, {Base}} -> {Base, Island0};
+                                     _ -> rw_island:post(Island0, St, external(T, D))
+                                 end,
     Next = rw_integrate:advance(M, St, V, W, U),
     Passed1 = case is_sync(T, D) of
                   true -> [{T, {St}, {Post}} | Passed];
                   false -> Passed
               end,
-    alone(T + Dt, Next, Last, S, D, Passed1, [Next | Acc]).
+    alone(T + Dt, Next, Last, D, Island, Passed1, [Next | Acc]).
 
 chain(T, _States, Last, _D, Island, Passed, Acc) when T >= Last ->
     {lists:reverse(Passed), lists:reverse(Acc), Island};
@@ -509,10 +509,13 @@ chain(T, States, Last, #d{model = M, dt = Dt} = D, Island, Passed, Acc) ->
 write_states(T0, States, Last, #d{sim = Sim, written = Written} = D) ->
     Members = [member_write(K, T0, Sts, D) || {K, Sts} <- lists:zip(lists:seq(1, length(States)), States)],
     Packed = list_to_tuple([P || {_, _, P} <- Members]),
+    Write = {self(), T0, maps:from_list([{Idx, Payload} || {{Idx, _, _, _, _, _} = Payload, _, _} <- Members]),
+             union([Bounds || {{_, _, _, _, _, Bounds}, _, _} <- Members])},
     %% hashing the states to cells and buckets is collision-checking work
-    Plan = ?TIMED(D, ?ST_RED_TVHT, plan([{Payload, cell_spans(T0, Spans, D)} || {Payload, Spans, _} <- Members], Sim)),
+    Plan = ?TIMED(D, ?ST_RED_TVHT, plan([{Idx, cell_spans(T0, Spans, D)} || {{Idx, _, _, _, _, _}, Spans, _} <- Members],
+                                        Sim)),
     maybe_delay(D),
-    {UpTo, Hits, Ids} = probe_commit(Plan, Last),
+    {UpTo, Hits, Ids} = probe_commit(Plan, Write, Last),
     Where = [{B, Pid, Cells} || {B, Pid, Cells, _} <- Plan],
     MaxWindow = max(1, D#d.stride div D#d.dt),
     Window = case Hits of
@@ -543,10 +546,10 @@ member_write(K, T0, States, #d{spheres = Spheres, model = M}) ->
 %% Probe the buckets of the plan in order under their locks, store the
 %% states up to the first LVT with contacts (or Last), and unlock:
 %% {UpTo, Hits (one per member and partner), contact ids}.
-probe_commit([{_, Pid, Cells, Writes}], Last) ->
-    rw_bucket:probe_commit(Pid, self(), Cells, Writes, Last);
-probe_commit(Plan, Last) ->
-    Results = [rw_bucket:lock_probe(Pid, self(), Cells, Writes) || {_, Pid, Cells, Writes} <- Plan],
+probe_commit([{_, Pid, Cells, Spans}], Write, Last) ->
+    rw_bucket:probe_commit(Pid, Cells, Write, Spans, Last);
+probe_commit(Plan, Write, Last) ->
+    Results = [rw_bucket:lock_probe(Pid, Cells, Write, Spans) || {_, Pid, Cells, Spans} <- Plan],
     {UpTo, Hits} = case [R || R <- Results, R =/= none] of
                        [] -> {Last, []};
                        Found ->
@@ -568,6 +571,12 @@ state_in(T, [{T0, _, _, Packed} | _], Dt) when T0 =< T ->
     I = (T - T0) div Dt + 1,
     list_to_tuple([rw_states:state(P, I) || P <- tuple_to_list(Packed)]);
 state_in(T, [_ | Older], Dt) -> state_in(T, Older, Dt).
+
+%% The box around boxes.
+union([{X0, Y0, Z0, X1, Y1, Z1} | Rest]) ->
+    lists:foldl(fun({A0, B0, C0, A1, B1, C1}, {U0, V0, W0, U1, V1, W1}) ->
+                        {min(A0, U0), min(B0, V0), min(C0, W0), max(A1, U1), max(B1, V1), max(C1, W1)}
+                end, {X0, Y0, Z0, X1, Y1, Z1}, Rest).
 
 %% A box that holds the sphere at every state of a step (swept over each
 %% substep with CCD), padded against rounding: the buckets skip the
@@ -632,23 +641,25 @@ disp_at(Disps, I) -> element(I, Disps).
 aabb(#st{p = P}, undefined, R) -> rw_shape:sphere_aabb(P, R);
 aabb(#st{p = P}, Disp, R) -> rw_shape:swept_aabb(P, Disp, R).
 
-%% Group the members' cell spans by bucket, in bucket order (the lock
-%% order): [{BucketIndex, Pid, Cells, [{Payload, [{Cell, Ta, Tb}]}]}].
-plan(Writes, #sim{buckets = Buckets}) ->
+%% The members' cell spans (Idx and Cell => {Ta, Tb}) by cell and bucket,
+%% in bucket order (the lock order): [{BucketIndex, Pid, Cells, Spans}]
+%% with Spans as rw_bucket:span().
+plan(MemberSpans, #sim{buckets = Buckets}) ->
     NB = tuple_size(Buckets),
-    ByBucket = lists:foldl(
-                 fun({Payload, Spans}, Acc) ->
-                         Mine = maps:fold(fun(Cell, {Ta, Tb}, A) ->
-                                                  B = rw_hash:bucket(Cell, NB),
-                                                  maps:update_with(B, fun(L) -> [{Cell, Ta, Tb} | L] end,
-                                                                   [{Cell, Ta, Tb}], A)
-                                          end, #{}, Spans),
-                         maps:fold(fun(B, Ss, A) ->
-                                           maps:update_with(B, fun(L) -> [{Payload, Ss} | L] end, [{Payload, Ss}], A)
-                                   end, Acc, Mine)
-                 end, #{}, Writes),
-    [{B, element(B + 1, Buckets), lists:usort([C || {_, Ss} <- Ws, {C, _, _} <- Ss]), Ws}
-     || {B, Ws} <- lists:sort(maps:to_list(ByBucket))].
+    ByCell = lists:foldl(fun({Idx, Spans}, Acc) ->
+                                 maps:fold(fun(Cell, {Ta, Tb}, A) ->
+                                                   maps:update_with(Cell, fun(L) -> [{Idx, Ta, Tb} | L] end,
+                                                                    [{Idx, Ta, Tb}], A)
+                                           end, Acc, Spans)
+                         end, #{}, MemberSpans),
+    ByBucket = maps:fold(fun(Cell, [{_, Ta0, Tb0} | _] = Ms, Acc) ->
+                                 {Ta, Tb} = lists:foldl(fun({_, A, B}, {L, H}) -> {min(A, L), max(B, H)} end,
+                                                        {Ta0, Tb0}, Ms),
+                                 maps:update_with(rw_hash:bucket(Cell, NB), fun(L) -> [{Cell, Ta, Tb, Ms} | L] end,
+                                                  [{Cell, Ta, Tb, Ms}], Acc)
+                         end, #{}, ByCell),
+    [{B, element(B + 1, Buckets), lists:sort([C || {C, _, _, _} <- Spans]), Spans}
+     || {B, Spans} <- lists:sort(maps:to_list(ByBucket))].
 
 send_events(_T, [], _Ids, D) -> D;
 send_events(T, Hits, Ids, #d{spheres = Spheres, pos = Pos, model = M, contacts = Contacts} = D) ->

@@ -1,15 +1,19 @@
 %% A bucket of the temporal volumetric hash table (TVHT). A fixed pool of
 %% buckets shares the cells of Z^3 (rw_hash:bucket/2). An entity (rw_body:
 %% one body, or a group of bodies in persistent contact) writes the states
-%% of one step at once, for each of its members: for each cell the member's
-%% AABB touches, the range of substeps [Ta, Tb] during which it does. A
-%% bucket keeps those segments per cell and body, runs the narrowphase on a
-%% write against the other bodies' states at the same LVT in the same cell,
-%% remembers the contacts it reported, returns them when one of the two
-%% states is deleted, and locks cells for one writer at a time. Contacts
-%% among the members of one write are not its business: the writer finds
-%% those itself (rw_island), and the members' segments are stored only
-%% after the whole write has been probed.
+%% of one step at once: for each cell its members' AABBs touch, the range of
+%% substeps [Ta, Tb] during which each member does. A bucket keeps, per
+%% cell and writer, one segment per write (newest first), runs the
+%% narrowphase on a write against the other writers' states at the same
+%% LVT in the same cell, remembers the contacts it reported, returns them
+%% when one of the two states is deleted, and locks cells for one writer at
+%% a time. Contacts among the members of one write are not its business:
+%% the writer finds those itself (rw_island).
+%%
+%% Keeping a group's members together per cell lets a probe skip its own
+%% group with one comparison, and a foreign group whose write lies apart
+%% from its own with one more (Cylinders' rows of piles share cells but
+%% never touch); only then are member pairs compared, by time and box.
 %%
 %% Locking (Lemma 1): a body asks the buckets it needs in increasing bucket
 %% index, and a bucket grants a request for a set of its cells only when all
@@ -22,25 +26,29 @@
 -export([start_link/3, lock_probe/4, commit_unlock/4, probe_commit/5, lock_delete/5, unlock/2, gvt/2, profile/2,
          contact_ids/2]).
 -export([init/1, handle_call/3, handle_cast/2, handle_info/2]).
--export_type([entry/0, payload/0, write/0, bounds/0, hit/0, cid/0]).
+-export_type([entry/0, payload/0, write/0, span/0, bounds/0, hit/0, cid/0]).
 
-%% One step's states of one body: T0 is the LVT of the first state,
+%% One step's states of one member: T0 is the LVT of the first state,
 %% States (and, with CCD, the free displacements) hold one per substep,
 %% Bounds is a box that holds the sphere (swept, with CCD) at all of them.
 -type payload() :: {Idx :: non_neg_integer(), pid(), #sphere{}, T0 :: non_neg_integer(),
                     States :: rw_states:packed(), Bounds :: bounds()}.
 -type bounds() :: {float(), float(), float(), float(), float(), float()}.
-%% A cell touched from Ta to Tb (substeps of the payload).
--type span() :: {rw_hash:cell(), Ta :: non_neg_integer(), Tb :: non_neg_integer()}.
+%% One entity's step: the writer, its first substep, its members' payloads
+%% and a box that holds them all.
+-type write() :: {Writer :: pid(), T0 :: non_neg_integer(), #{non_neg_integer() => payload()}, bounds()}.
+%% A cell touched by the write from Ta to Tb, and by each member from its
+%% own Ta to Tb.
+-type span() :: {rw_hash:cell(), Ta :: non_neg_integer(), Tb :: non_neg_integer(), [member_span()]}.
+-type member_span() :: {Idx :: non_neg_integer(), Ta :: non_neg_integer(), Tb :: non_neg_integer()}.
 %% One body's state at one LVT, as the narrowphase sees it.
 -type entry() :: {Idx :: non_neg_integer(), pid(), #sphere{}, #st{}, Disp :: rw_vec:vec() | undefined}.
-%% One member's payload and the spans of its cells in this bucket.
--type write() :: {payload(), [span()]}.
 %% A contact found by the narrowphase between the writer's member MyIdx and
 %% another body, in canonical order (lower idx first).
 -type hit() :: {MyIdx :: non_neg_integer(), entry(), #contact{}}.
 -type cid() :: {non_neg_integer(), non_neg_integer(), non_neg_integer(), reference()}.
--type seg() :: {Ta :: non_neg_integer(), Tb :: non_neg_integer(), payload()}.
+%% A write's presence in one cell.
+-type seg() :: {Ta :: non_neg_integer(), Tb :: non_neg_integer(), write(), [member_span()]}.
 
 -record(state, {
     model :: #model{},
@@ -48,14 +56,14 @@
     locks = #{} :: #{rw_hash:cell() => pid()},
     held = #{} :: #{pid() => [rw_hash:cell()]},   % the same locks by owner
     waiting = [] :: [{gen_server:from(), pid(), [rw_hash:cell()], term()}],
-    %% per cell, per body, that body's segments newest first: a body writes
+    %% per cell, per writer, its segments newest first: an entity writes
     %% forward in time and a rollback cuts the newest ones, so each list is
     %% sorted and a probe near the present reads only its head
-    cells = #{} :: #{rw_hash:cell() => #{non_neg_integer() => [seg()]}},
+    cells = #{} :: #{rw_hash:cell() => #{pid() => [seg()]}},
     %% contacts reported from this bucket, by body: [{T, Cid}]
     by_body = #{} :: #{non_neg_integer() => [{non_neg_integer(), cid()}]},
     contacts = #{} :: #{cid() => {Detector :: pid(), Other :: pid()}},
-    probes = #{} :: #{pid() => {[write()], {non_neg_integer(), [hit()]} | none}},
+    probes = #{} :: #{pid() => {write(), [span()], {non_neg_integer(), [hit()]} | none}},
     gc_at = 0 :: non_neg_integer(),
     %% when profiling: the simulation's counters (tvht_reductions is counter 7)
     profile = undefined :: counters:counters_ref() | undefined
@@ -69,9 +77,9 @@ start_link(Model, Dt, _Index) -> gen_server:start_link(?MODULE, {Model, Dt}, [])
 %% Lock Cells for the caller, then find the earliest LVT at which one of
 %% the written members touches another body: {T, Hits} or none. The caller
 %% must follow with commit_unlock/4.
--spec lock_probe(pid(), pid(), [rw_hash:cell()], [write()]) -> {non_neg_integer(), [hit()]} | none.
-lock_probe(Bucket, Owner, Cells, Writes) ->
-    gen_server:call(Bucket, {lock, Owner, Cells, {probe, Writes}}, infinity).
+-spec lock_probe(pid(), [rw_hash:cell()], write(), [span()]) -> {non_neg_integer(), [hit()]} | none.
+lock_probe(Bucket, Cells, {Owner, _, _, _} = Write, Spans) ->
+    gen_server:call(Bucket, {lock, Owner, Cells, {probe, Write, Spans}}, infinity).
 
 %% Store the probed states up to and including UpTo, record the contacts
 %% at UpTo under the ids the writer gave them (by {member, partner} idx),
@@ -84,10 +92,10 @@ commit_unlock(Bucket, Owner, UpTo, Ids) ->
 %% are all in this bucket: the states are stored up to the first LVT with
 %% contacts (or Last), and the contacts there get ids. No lock outlives
 %% the call, so no other writer waits on this one's messages.
--spec probe_commit(pid(), pid(), [rw_hash:cell()], [write()], non_neg_integer()) ->
+-spec probe_commit(pid(), [rw_hash:cell()], write(), [span()], non_neg_integer()) ->
           {UpTo :: non_neg_integer(), [hit()], ids()}.
-probe_commit(Bucket, Owner, Cells, Writes, Last) ->
-    gen_server:call(Bucket, {lock, Owner, Cells, {probe_commit, Writes, Last}}, infinity).
+probe_commit(Bucket, Cells, {Owner, _, _, _} = Write, Spans, Last) ->
+    gen_server:call(Bucket, {lock, Owner, Cells, {probe_commit, Write, Spans, Last}}, infinity).
 
 %% The ids of the contacts at T between the writer's members and other
 %% bodies, by {member idx, partner idx}: {T, lower idx, higher idx, unique}.
@@ -96,9 +104,10 @@ probe_commit(Bucket, Owner, Cells, Writes, Last) ->
 contact_ids(T, Pairs) ->
     maps:from_list([{{Idx, OIdx}, {T, min(Idx, OIdx), max(Idx, OIdx), make_ref()}} || {Idx, OIdx} <- Pairs]).
 
-%% Lock Cells, delete the states after R of the bodies Idxs in them, and
-%% return the contacts those states had: [{Cid, Detector, Other}]. Unlock
-%% with unlock/2.
+%% Lock Cells, delete the caller's states after R in them (of its members
+%% Idxs), and return the contacts those states had: [{Cid, Detector,
+%% Other}]. Unlock with unlock/2. (A rollback never reaches a regroup
+%% point, so every state after R was written by the caller.)
 -spec lock_delete(pid(), pid(), [rw_hash:cell()], [non_neg_integer()], non_neg_integer()) ->
           [{cid(), pid(), pid()}].
 lock_delete(Bucket, Owner, Cells, Idxs, R) ->
@@ -152,13 +161,13 @@ cast({gvt, Gvt}, #state{gc_at = At} = S) when Gvt < At ->
     {noreply, S};
 cast({gvt, Gvt}, #state{cells = Cells, by_body = By, contacts = C, dt = Dt} = S) ->
     Recent = fun(_, Segs) ->
-                     case lists:takewhile(fun({_, Tb, _}) -> Tb >= Gvt end, Segs) of
+                     case lists:takewhile(fun({_, Tb, _, _}) -> Tb >= Gvt end, Segs) of
                          [] -> false;
                          Kept -> {true, Kept}
                      end
              end,
-    Cells1 = maps:filtermap(fun(_, ByIdx) ->
-                                    case maps:filtermap(Recent, ByIdx) of
+    Cells1 = maps:filtermap(fun(_, ByWriter) ->
+                                    case maps:filtermap(Recent, ByWriter) of
                                         Empty when map_size(Empty) =:= 0 -> false;
                                         Kept -> {true, Kept}
                                     end
@@ -215,75 +224,94 @@ grant([{From, Owner, Cells, Op} = W | Rest], Kept, S) ->
 
 %%% Operations under lock
 
-locked_op(Owner, {probe, Writes}, S) ->
-    Result = probe(Writes, S),
-    {Result, S#state{probes = (S#state.probes)#{Owner => {Writes, Result}}}};
-locked_op(Owner, {probe_commit, Writes, Last}, S) ->
-    Result = probe(Writes, S),
+locked_op(Owner, {probe, Write, Spans}, S) ->
+    Result = probe(Write, Spans, S),
+    {Result, S#state{probes = (S#state.probes)#{Owner => {Write, Spans, Result}}}};
+locked_op(Owner, {probe_commit, Write, Spans, Last}, S) ->
+    Result = probe(Write, Spans, S),
     {UpTo, Hits} = case Result of
                        none -> {Last, []};
                        Found -> Found
                    end,
     Ids = contact_ids(UpTo, [{Idx, OIdx} || {Idx, {OIdx, _, _, _, _}, _} <- Hits]),
-    S1 = store(Owner, Writes, Result, UpTo, Ids, S),
+    S1 = store(Owner, Write, Spans, Result, UpTo, Ids, S),
     %% The cells were free when this call took them, so freeing them again
     %% changes nothing for the requests still waiting (and granting here
     %% would re-enter grant/3, which may be running this very call).
     {{UpTo, Hits, Ids}, drop_locks(Owner, S1)};
-locked_op(_Owner, {delete, Idxs, R, Cells}, S) ->
-    delete(Idxs, R, Cells, S).
+locked_op(Owner, {delete, Idxs, R, Cells}, S) ->
+    delete(Owner, Idxs, R, Cells, S).
 
 %% The earliest LVT at which one of the written members touches another
-%% body's state in one of its cells, with every contact at that LVT. A pair
-%% of writes often shares several cells: their windows are merged first, so
-%% that each pair is checked once, and not at all when their bounds are
-%% apart.
-probe(Writes, S) -> probe(Writes, none, S).
-
-probe([], Best, _S) -> Best;
-probe([{{Idx, _, _, _, _, _} = Mine, Spans} | Rest], Best, #state{cells = Cells} = S) ->
+%% body's state in one of its cells, with every contact at that LVT. Member
+%% pairs meet in several cells: their windows are merged first, so that
+%% each pair is checked once, and not at all when their boxes are apart.
+probe({Me, _, _, Bounds} = Write, Spans, #state{cells = Cells} = S) ->
     Windows = lists:foldl(
-                fun({Cell, Ta, Tb}, Acc) ->
+                fun({Cell, Ta, Tb, Ms}, Acc) ->
                         case Cells of
-                            #{Cell := ByIdx} -> cell_windows(maps:to_list(ByIdx), Idx, Ta, Tb, Acc);
+                            %% (maps:to_list is one BIF call; maps:fold steps
+                            %% an iterator in Erlang)
+                            #{Cell := ByWriter} -> cell_windows(maps:to_list(ByWriter), Me, Bounds, Ta, Tb, Ms, Acc);
                             _ -> Acc
                         end
                 end, #{}, Spans),
-    %% (maps:to_list is one BIF call; maps:fold steps an iterator in Erlang)
-    probe(Rest, scan_windows(maps:to_list(Windows), Mine, Best, S), S).
+    scan_windows(maps:to_list(Windows), Write, none, S).
 
-cell_windows([], _Idx, _Ta, _Tb, Acc) -> Acc;
-cell_windows([{Idx, _} | Rest], Idx, Ta, Tb, Acc) -> cell_windows(Rest, Idx, Ta, Tb, Acc);
-cell_windows([{_, Segs} | Rest], Idx, Ta, Tb, Acc) -> cell_windows(Rest, Idx, Ta, Tb, windows(Segs, Ta, Tb, Acc)).
+%% The other writers in a cell (not the prober's own earlier writes).
+cell_windows([], _Me, _Bounds, _Ta, _Tb, _Ms, Acc) -> Acc;
+cell_windows([{Me, _} | Rest], Me, Bounds, Ta, Tb, Ms, Acc) -> cell_windows(Rest, Me, Bounds, Ta, Tb, Ms, Acc);
+cell_windows([{_, Segs} | Rest], Me, Bounds, Ta, Tb, Ms, Acc) ->
+    cell_windows(Rest, Me, Bounds, Ta, Tb, Ms, segs(Segs, Bounds, Ta, Tb, Ms, Acc)).
 
-scan_windows([], _Mine, Best, _S) -> Best;
-scan_windows([{_, {Other, Lo, Hi}} | Rest], Mine, Best, S) ->
-    case apart(Mine, Other) of
-        true -> scan_windows(Rest, Mine, Best, S);
-        false -> scan_windows(Rest, Mine, scan(Lo, bound(Hi, Best), Mine, Other, Best, S), S)
-    end.
-
-%% One other body's segments in a cell, newest first: skip those after the
-%% window, stop at the first one before it; merge each overlap into the
-%% window of its write.
-windows([], _Ta, _Tb, Acc) -> Acc;
-windows([{_, OTb, _} | _], Ta, _Tb, Acc) when OTb < Ta -> Acc;
-windows([{OTa, _, _} | Rest], Ta, Tb, Acc) when OTa > Tb -> windows(Rest, Ta, Tb, Acc);
-windows([{OTa, OTb, {OIdx, _, _, OT0, _, _} = Other} | Rest], Ta, Tb, Acc) ->
-    Lo = max(Ta, OTa),
-    Hi = min(Tb, OTb),
-    Key = {OIdx, OT0},
-    Acc1 = case Acc of
-               #{Key := {_, L, H}} -> Acc#{Key := {Other, min(L, Lo), max(H, Hi)}};
-               _ -> Acc#{Key => {Other, Lo, Hi}}
+%% A writer's segments in the cell, newest first: skip those after the
+%% window, stop at the first one before it; for each that overlaps it, and
+%% whose write is not apart from the prober's, the member pairs that meet
+%% in time.
+segs([], _Bounds, _Ta, _Tb, _Ms, Acc) -> Acc;
+segs([{_, OTb, _, _} | _], _Bounds, Ta, _Tb, _Ms, Acc) when OTb < Ta -> Acc;
+segs([{OTa, _, _, _} | Rest], Bounds, Ta, Tb, Ms, Acc) when OTa > Tb -> segs(Rest, Bounds, Ta, Tb, Ms, Acc);
+segs([{_, _, {_, _, _, OBounds} = W, OMs} | Rest], Bounds, Ta, Tb, Ms, Acc) ->
+    Acc1 = case apart(Bounds, OBounds) of
+               true -> Acc;
+               false -> member_windows(Ms, OMs, W, Acc)
            end,
-    windows(Rest, Ta, Tb, Acc1).
+    segs(Rest, Bounds, Ta, Tb, Ms, Acc1).
+
+%% Windows keyed by {member, other member, other write's T0}.
+member_windows([], _OMs, _W, Acc) -> Acc;
+member_windows([{I, A, B} | Rest], OMs, {_, OT0, _, _} = W, Acc) ->
+    Acc1 = lists:foldl(fun({O, OA, OB}, Ac) ->
+                               Lo = max(A, OA),
+                               Hi = min(B, OB),
+                               Key = {I, O, OT0},
+                               if
+                                   Lo > Hi -> Ac;
+                                   true ->
+                                       case Ac of
+                                           #{Key := {_, L, H}} -> Ac#{Key := {W, min(L, Lo), max(H, Hi)}};
+                                           _ -> Ac#{Key => {W, Lo, Hi}}
+                                       end
+                               end
+                       end, Acc, OMs),
+    member_windows(Rest, OMs, W, Acc1).
+
+scan_windows([], _Write, Best, _S) -> Best;
+scan_windows([{{I, O, _}, {{_, _, OMembers, _}, Lo, Hi}} | Rest], {_, _, Members, _} = Write, Best, S) ->
+    Mine = maps:get(I, Members),
+    Other = maps:get(O, OMembers),
+    case apart(Mine, Other) of
+        true -> scan_windows(Rest, Write, Best, S);
+        false -> scan_windows(Rest, Write, scan(Lo, bound(Hi, Best), Mine, Other, Best, S), S)
+    end.
 
 bound(Hi, none) -> Hi;
 bound(Hi, {BT, _}) -> min(Hi, BT).
 
-%% The two writes' bounds do not overlap: they cannot touch.
-apart({_, _, _, _, _, {AX0, AY0, AZ0, AX1, AY1, AZ1}}, {_, _, _, _, _, {BX0, BY0, BZ0, BX1, BY1, BZ1}}) ->
+%% Two boxes (of writes or of payloads) that do not overlap: what is
+%% inside cannot touch.
+apart({_, _, _, _, _, A}, {_, _, _, _, _, B}) when is_tuple(A) -> apart(A, B);
+apart({AX0, AY0, AZ0, AX1, AY1, AZ1}, {BX0, BY0, BZ0, BX1, BY1, BZ1}) ->
     AX1 < BX0 orelse BX1 < AX0 orelse AY1 < BY0 orelse BY1 < AY0 orelse AZ1 < BZ0 orelse BZ1 < AZ0.
 
 %% First LVT in [Lo, Hi] at which the two bodies touch. Without CCD the
@@ -333,14 +361,21 @@ narrow(#model{ccd = true}, {_, _, #sphere{radius = RA}, #st{p = PA}, DA},
     rw_narrow:swept_sphere_sphere(PA, DA, RA, PB, DB, RB).
 
 commit(Owner, UpTo, Ids, #state{probes = Probes} = S) ->
-    {{Writes, Result}, Probes1} = maps:take(Owner, Probes),
-    store(Owner, Writes, Result, UpTo, Ids, S#state{probes = Probes1}).
+    {{Write, Spans, Result}, Probes1} = maps:take(Owner, Probes),
+    store(Owner, Write, Spans, Result, UpTo, Ids, S#state{probes = Probes1}).
 
-%% Store the probed members' states up to UpTo, and the contacts the write
-%% found there (in this bucket).
-store(Owner, Writes, Result, UpTo, Ids, #state{cells = Cells} = S) ->
-    Cells1 = lists:foldl(fun({{Idx, _, _, _, _, _} = Payload, Spans}, C) -> store_spans(Idx, Payload, Spans, UpTo, C) end,
-                         Cells, Writes),
+%% Store the probed write's segments up to UpTo, and the contacts it found
+%% there (in this bucket).
+store(Owner, Write, Spans, Result, UpTo, Ids, #state{cells = Cells} = S) ->
+    Cells1 = lists:foldl(fun({Cell, Ta, Tb, Ms}, Acc) when Ta =< UpTo ->
+                                 Seg = {Ta, min(Tb, UpTo), Write, [{I, A, min(B, UpTo)} || {I, A, B} <- Ms, A =< UpTo]},
+                                 case Acc of
+                                     #{Cell := #{Owner := Segs} = ByW} -> Acc#{Cell := ByW#{Owner := [Seg | Segs]}};
+                                     #{Cell := ByW} -> Acc#{Cell := ByW#{Owner => [Seg]}};
+                                     _ -> Acc#{Cell => #{Owner => [Seg]}}
+                                 end;
+                            (_, Acc) -> Acc
+                         end, Cells, Spans),
     S1 = S#state{cells = Cells1},
     case Result of
         {UpTo, Hits} ->
@@ -351,52 +386,38 @@ store(Owner, Writes, Result, UpTo, Ids, #state{cells = Cells} = S) ->
             S1
     end.
 
-store_spans(Idx, Payload, Spans, UpTo, Cells) ->
-    lists:foldl(fun({Cell, Ta, Tb}, Acc) when Ta =< UpTo ->
-                        Seg = {Ta, min(Tb, UpTo), Payload},
-                        case Acc of
-                            #{Cell := #{Idx := Segs} = ByIdx} -> Acc#{Cell := ByIdx#{Idx := [Seg | Segs]}};
-                            #{Cell := ByIdx} -> Acc#{Cell := ByIdx#{Idx => [Seg]}};
-                            _ -> Acc#{Cell => #{Idx => [Seg]}}
-                        end;
-                   (_, Acc) -> Acc
-                end, Cells, Spans).
-
 record(Cid, T, Idx, Detector, OIdx, Other, #state{by_body = By, contacts = C} = S) ->
     Add = fun(L) -> [{T, Cid} | L] end,
     By1 = maps:update_with(OIdx, Add, [{T, Cid}], maps:update_with(Idx, Add, [{T, Cid}], By)),
     S#state{by_body = By1, contacts = C#{Cid => {Detector, Other}}}.
 
-%% Delete the states after R of the bodies Idxs in the cells Owned; return
-%% the contacts they had (once each).
-delete(Idxs, R, Owned, S) ->
-    {Lost, S1} = lists:foldl(fun(Idx, {L, Acc}) ->
-                                     {L1, Acc1} = delete_one(Idx, R, Owned, Acc),
-                                     {L1 ++ L, Acc1}
-                             end, {[], S}, Idxs),
-    {lists:ukeysort(1, Lost), S1}.
-
-delete_one(Idx, R, Owned, #state{cells = Cells, by_body = By, contacts = C} = S) ->
+%% Delete Owner's states after R in the cells Owned; return the contacts
+%% its members Idxs had there after R (once each).
+delete(Owner, Idxs, R, Owned, #state{cells = Cells, by_body = By, contacts = C} = S) ->
     Cells1 = lists:foldl(
                fun(Cell, Acc) ->
                        case Acc of
-                           #{Cell := #{Idx := Segs} = ByIdx} ->
+                           #{Cell := #{Owner := Segs} = ByW} ->
                                case truncate(Segs, R) of
-                                   [] when map_size(ByIdx) =:= 1 -> maps:remove(Cell, Acc);
-                                   [] -> Acc#{Cell := maps:remove(Idx, ByIdx)};
-                                   Kept -> Acc#{Cell := ByIdx#{Idx := Kept}}
+                                   [] when map_size(ByW) =:= 1 -> maps:remove(Cell, Acc);
+                                   [] -> Acc#{Cell := maps:remove(Owner, ByW)};
+                                   Kept -> Acc#{Cell := ByW#{Owner := Kept}}
                                end;
                            _ -> Acc
                        end
                end, Cells, Owned),
-    {Gone, Kept} = lists:partition(fun({T, _}) -> T > R end, maps:get(Idx, By, [])),
-    By1 = case Kept of [] -> maps:remove(Idx, By); _ -> By#{Idx => Kept} end,
-    Lost = [{Cid, D, O} || {_, Cid} <- Gone, {D, O} <- [maps:get(Cid, C, none)]],
+    {Gone, By1} = lists:foldl(fun(Idx, {G, B}) ->
+                                      case lists:partition(fun({T, _}) -> T > R end, maps:get(Idx, B, [])) of
+                                          {G1, []} -> {G1 ++ G, maps:remove(Idx, B)};
+                                          {G1, Kept} -> {G1 ++ G, B#{Idx => Kept}}
+                                      end
+                              end, {[], By}, Idxs),
+    Lost = lists:ukeysort(1, [{Cid, D, O} || {_, Cid} <- Gone, {D, O} <- [maps:get(Cid, C, none)]]),
     {Lost, S#state{cells = Cells1, by_body = By1, contacts = maps:without([Cid || {_, Cid} <- Gone], C)}}.
 
-%% A body's segments (newest first) end at R at the latest.
-truncate([{Ta, _, _} | Rest], R) when Ta > R -> truncate(Rest, R);
-truncate([{Ta, Tb, P} | Rest], R) when Tb > R -> [{Ta, R, P} | Rest];
+%% A writer's segments (newest first) end at R at the latest.
+truncate([{Ta, _, _, _} | Rest], R) when Ta > R -> truncate(Rest, R);
+truncate([{Ta, Tb, W, Ms} | Rest], R) when Tb > R -> [{Ta, R, W, [{I, A, min(B, R)} || {I, A, B} <- Ms, A =< R]} | Rest];
 truncate(Segs, _R) -> Segs.
 
 %% Work done by this process so far (profiling counts reductions, which

@@ -36,7 +36,8 @@
     frames = 0 :: non_neg_integer(),
     pids = #{} :: #{non_neg_integer() => pid()},        % body idx => process
     radii = #{} :: #{non_neg_integer() => float()},
-    leaders = #{} :: rw_regroup:leaders()               % the groups planned last
+    leaders = #{} :: rw_regroup:leaders(),              % the groups planned last
+    touching = #{} :: rw_regroup:pairs()                % at the sync point before a regroup point
 }).
 
 -spec start_link() -> {ok, pid()}.
@@ -203,21 +204,33 @@ advance_over(#s{complete = C, sim = #sim{end_t = End} = Sim} = S) ->
     end.
 
 %% At a regroup point X, plan the groups for X + period from the states
-%% committed at X (still in the records table) and write who moves then.
-regroup(X, #s{sim = #sim{period = P, end_t = End}} = S) when P =:= 0; X rem P =/= 0; X + P >= End -> S;
-regroup(X, #s{sim = #sim{period = P, group_max = Max, grouping = Mode, records = Records, plans = Plans,
-                         stats = Stats},
-              radii = Radii, leaders = Old, pids = Pids} = S) ->
-    Bodies = [{I, maps:get(I, Radii), Pos, V}
-              || {I, {_, Pos, V, _, _}} <- ets:select(Records, [{{{X, '$1'}, '$2'}, [], [{{'$1', '$2'}}]}])],
-    New = rw_regroup:plan(Bodies, Old, Max, Mode),
+%% committed at X (still in the records table) and the pairs that touched
+%% at the sync point before X, and write who moves then. At the sync point
+%% before a regroup point, remember which pairs touch.
+regroup(_X, #s{sim = #sim{period = 0}} = S) -> S;
+regroup(X, #s{sim = #sim{period = P, end_t = End, scene = #scene{frame = F, stride = Stride}, grouping = persistent}} = S)
+  when X rem P =/= 0; X + P >= End ->
+    Next = sync_after(X, F, Stride, End),
+    case Next rem P =:= 0 andalso Next + P < End of
+        true -> S#s{touching = rw_regroup:touching(committed(X, S))};
+        false -> S
+    end;
+regroup(X, #s{sim = #sim{period = P, end_t = End}} = S) when X rem P =/= 0; X + P >= End -> S;
+regroup(X, #s{sim = #sim{period = P, group_max = Max, grouping = Mode, plans = Plans, stats = Stats},
+              leaders = Old, pids = Pids, touching = Before} = S) ->
+    New = rw_regroup:plan(committed(X, S), Old, Max, case Mode of eager -> eager; persistent -> Before end),
     Moves = rw_regroup:moves(Old, New, Pids),
     ets:insert(Plans, [{{X + P, I}, Move} || {I, Move} <- maps:to_list(Moves)]),
     %% plans before the previous point are done with
     ets:select_delete(Plans, [{{{'$1', '_'}, '_'}, [{'<', '$1', X}], [true]}]),
     %% counter 13 is regroups: groups that change
     counters:add(Stats, 13, length([M || {_, #{send := _} = M} <- maps:to_list(Moves)])),
-    S#s{leaders = New}.
+    S#s{leaders = New, touching = #{}}.
+
+%% Every body's committed state at sync point X: {Idx, Radius, P, V}.
+committed(X, #s{sim = #sim{records = Records}, radii = Radii}) ->
+    [{I, maps:get(I, Radii), Pos, V}
+     || {I, {_, Pos, V, _, _}} <- ets:select(Records, [{{{X, '$1'}, '$2'}, [], [{{'$1', '$2'}}]}])].
 
 wake(G, Waiting) ->
     case gb_sets:is_empty(Waiting) of

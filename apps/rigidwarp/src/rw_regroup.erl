@@ -7,10 +7,14 @@
 %% meet at every substep and exchange a TVHT write, an event and an
 %% acknowledgement per pair and substep. A group is a connected set of
 %% bodies that
-%%   join  - touch (centres closer than 1.02 x the sum of their radii) and
-%%           move together (relative normal speed below 1/8 of the sum of
-%%           their radii per second, 0.1 m/s for two spheres of 0.4 m):
-%%           resting or rolling on each other, not bouncing off;
+%%   join  - touch (centres closer than 1.05 x the sum of their radii) at
+%%           the regroup point and at the sync point before it (10 ms
+%%           earlier in the paper's scenes), and do not move apart or
+%%           together faster than half the sum of their radii per second
+%%           (0.4 m/s for two spheres of 0.4 m): resting, rolling or
+%%           pressing on each other, not bouncing off (a bounce is over in a
+%%           few substeps; grouping every pair near each other made Bouncing
+%%           500 1.8 times as slow, with 90 times as many regroups);
 %%   stay  - already share a group and are closer than 1.25 x the sum of
 %%           their radii, however they move (hysteresis: a group does not
 %%           split and re-form at every jostle);
@@ -22,8 +26,8 @@
 %% A group's leader is its lowest idx. Grouping never changes the physics,
 %% only which process computes it.
 -module(rw_regroup).
--export([plan/3, plan/4, moves/3]).
--export_type([body/0, leaders/0, move/0, mode/0]).
+-export([touching/1, plan/4, moves/3]).
+-export_type([body/0, leaders/0, move/0, pairs/0]).
 
 %% A body's committed state at the regroup point: idx, radius, position,
 %% post-response velocity.
@@ -34,21 +38,24 @@
 %% new leaders ([{Member, NewLeader, NewLeaderPid}]) and/or gather a group
 %% from the old leaders of its new members.
 -type move() :: #{send => [{non_neg_integer(), non_neg_integer(), pid()}], gather => [non_neg_integer()]}.
--type mode() :: persistent | eager.
+%% Pairs of bodies {A, B}, A < B.
+-type pairs() :: #{{non_neg_integer(), non_neg_integer()} => true}.
 
--define(JOIN, 1.02).
+-define(TOUCH, 1.05).
+-define(JOIN_SPEED, 0.5).            % sums of radii per second
 -define(STAY, 1.25).
--define(JOIN_SPEED, 0.125).          % relative normal speed, sums of radii per second
 -define(EAGER, 3.0).
 
-%% The groups for the next period, from Bodies and the current groups.
--spec plan([body()], leaders(), pos_integer()) -> leaders().
-plan(Bodies, Old, Max) -> plan(Bodies, Old, Max, persistent).
+%% The pairs of Bodies that touch (for the next plan/4).
+-spec touching([body()]) -> pairs().
+touching(Bodies) -> maps:from_list([{Pair, true} || {Pair, Dist, Sum} <- close(Bodies, ?TOUCH), Dist < ?TOUCH * Sum]).
 
--spec plan([body()], leaders(), pos_integer(), mode()) -> leaders().
-plan(Bodies, Old, Max, Mode) ->
+%% The groups for the next period, from Bodies, the current groups and the
+%% pairs that touched at the sync point before (eager: tests).
+-spec plan([body()], leaders(), pos_integer(), pairs() | eager) -> leaders().
+plan(Bodies, Old, Max, Before) ->
     ByIdx = maps:from_list([{I, B} || {I, _, _, _} = B <- Bodies]),
-    {Stay, Join} = edges(Bodies, Old, Mode),
+    {Stay, Join} = edges(Bodies, Old, Before),
     Uf0 = maps:from_list([{I, {I, 1}} || {I, _, _, _} <- Bodies]),
     Uf1 = lists:foldl(fun({A, B}, U) -> union(A, B, Max, U) end, Uf0, Stay),
     Uf = lists:foldl(fun({_, {A, B}}, U) -> union(A, B, Max, U) end, Uf1, lists:sort(Join)),
@@ -86,48 +93,54 @@ groups(Leaders) ->
 
 is_group([L | _] = G, Groups) -> maps:get(L, Groups, none) =:= G.
 
-%% Pairs close enough to stay together or to join: bodies sorted by x,
-%% each tested against those after it that are closer along x than the
-%% largest reach.
-edges(Bodies, Old, persistent) ->
+%% Pairs close enough to stay together or to join.
+edges(Bodies, Old, Before) ->
+    Join = case Before of eager -> ?EAGER; _ -> ?TOUCH end,
+    ByIdx = maps:from_list([{I, B} || {I, _, _, _} = B <- Bodies]),
+    lists:foldl(fun({{A, B} = Pair, Dist, Sum}, {S, J}) ->
+                        case maps:get(A, Old) =:= maps:get(B, Old) of
+                            true when Dist < ?STAY * Sum -> {[Pair | S], J};
+                            false when Before =:= eager, Dist < Join * Sum -> {S, [{Dist, Pair} | J]};
+                            false when Dist < Join * Sum, is_map_key(Pair, Before) ->
+                                case slow(maps:get(A, ByIdx), maps:get(B, ByIdx), Dist, Sum) of
+                                    true -> {S, [{Dist, Pair} | J]};
+                                    false -> {S, J}
+                                end;
+                            _ -> {S, J}
+                        end
+                end, {[], []}, close(Bodies, max(?STAY, Join))).
+
+%% Two touching bodies that neither approach nor leave each other fast.
+slow({_, _, PA, VA}, {_, _, PB, VB}, Dist, Sum) ->
+    Dist > 0.0 andalso abs(rw_vec:dot(rw_vec:sub(VB, VA), rw_vec:sub(PB, PA))) / Dist < ?JOIN_SPEED * Sum.
+
+%% Pairs {{A, B}, Distance, SumOfRadii} closer than F x the sum of their
+%% radii: bodies sorted by x, each tested against those after it that are
+%% closer along x than the largest reach.
+close(Bodies, F) ->
     RMax = lists:max([0.0 | [R || {_, R, _, _} <- Bodies]]),
     ByX = lists:sort([{X, B} || {_, _, {X, _, _}, _} = B <- Bodies]),
-    sweep(ByX, 2.0 * RMax * ?STAY, Old, [], []);
-edges(Bodies, _Old, eager) ->
-    {[], [{Dist, {IA, IB}} || {IA, RA, PA, _} <- Bodies, {IB, RB, PB, _} <- Bodies, IA < IB,
-                              Dist <- [rw_vec:len(rw_vec:sub(PB, PA))], Dist < ?EAGER * (RA + RB)]}.
+    sweep(ByX, 2.0 * RMax * F, F, []).
 
-sweep([], _Reach, _Old, Stay, Join) -> {Stay, Join};
-sweep([{X, A} | Rest], Reach, Old, Stay, Join) ->
-    {S, J} = near(Rest, X + Reach, Reach, A, Old, Stay, Join),
-    sweep(Rest, Reach, Old, S, J).
+sweep([], _Reach, _F, Acc) -> Acc;
+sweep([{X, A} | Rest], Reach, F, Acc) ->
+    sweep(Rest, Reach, F, near(Rest, X + Reach, Reach, F, A, Acc)).
 
 %% (most bodies within reach along x are far along y or z: two comparisons
 %% reject them before any distance is computed)
-near([{XB, B} | Rest], XMax, Reach, {IA, RA, {_, YA, ZA} = PA, VA} = A, Old, Stay, Join) when XB < XMax ->
+near([{XB, B} | Rest], XMax, Reach, F, {IA, RA, {_, YA, ZA} = PA, _} = A, Acc) when XB < XMax ->
     case B of
         {_, _, {_, YB, ZB}, _} when abs(YB - YA) >= Reach; abs(ZB - ZA) >= Reach ->
-            near(Rest, XMax, Reach, A, Old, Stay, Join);
-        {IB, RB, PB, VB} ->
+            near(Rest, XMax, Reach, F, A, Acc);
+        {IB, RB, PB, _} ->
             Sum = RA + RB,
-            D = rw_vec:sub(PB, PA),
-            Dist = rw_vec:len(D),
-            Same = maps:get(IA, Old) =:= maps:get(IB, Old),
-            Pair = {min(IA, IB), max(IA, IB)},
-            if
-                Same, Dist < ?STAY * Sum ->
-                    near(Rest, XMax, Reach, A, Old, [Pair | Stay], Join);
-                not Same, Dist < ?JOIN * Sum, Dist > 0.0 ->
-                    Closing = abs(rw_vec:dot(rw_vec:sub(VB, VA), D)) / Dist,
-                    case Closing < ?JOIN_SPEED * Sum of
-                        true -> near(Rest, XMax, Reach, A, Old, Stay, [{Dist, Pair} | Join]);
-                        false -> near(Rest, XMax, Reach, A, Old, Stay, Join)
-                    end;
-                true ->
-                    near(Rest, XMax, Reach, A, Old, Stay, Join)
+            Dist = rw_vec:len(rw_vec:sub(PB, PA)),
+            case Dist < F * Sum of
+                true -> near(Rest, XMax, Reach, F, A, [{{min(IA, IB), max(IA, IB)}, Dist, Sum} | Acc]);
+                false -> near(Rest, XMax, Reach, F, A, Acc)
             end
     end;
-near(_, _XMax, _Reach, _A, _Old, Stay, Join) -> {Stay, Join}.
+near(_, _XMax, _Reach, _F, _A, Acc) -> Acc.
 
 %% Union-find over idx => {Parent, Size} (the smaller tree goes under the
 %% larger); a union that would make a group larger than Max is skipped.

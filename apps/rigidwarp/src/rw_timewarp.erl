@@ -10,7 +10,7 @@
                      groups => boolean(), group_max => pos_integer(),
                      %% (tests) regroup points this many strides apart, groups of
                      %% all bodies near each other however they move
-                     regroup_every => pos_integer(), grouping => rw_regroup:mode(),
+                     regroup_every => pos_integer(), grouping => persistent | eager,
                      watchdog_ms => pos_integer(), ring_size => pos_integer(), profile => boolean(),
                      delay => {Seed :: integer(), MaxMs :: non_neg_integer()},
                      on_frame => fun((rw_reference:frame()) -> any()),

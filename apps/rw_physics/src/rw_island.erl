@@ -15,9 +15,15 @@
 %% not on a valid list is then farther apart than the sum of their radii
 %% by a margin far above rounding, so the list finds exactly the contacts
 %% a test of every pair finds.
+%%
+%% Fixtures with a bounding box (cylinders, solid boxes) are listed per
+%% member the same way: those within its radius plus half a skin (one
+%% radius) of where it was when the list was built, valid while it stays
+%% within half a skin of there (absolutely: fixtures do not move). A
+%% member far from every post of a scene then tests none of them.
 -module(rw_island).
 -include("rw_physics.hrl").
--export([new/3, size/1, posts/3, step/3, alone/5]).
+-export([new/3, size/1, posts/3, step/3, post/3]).
 -export_type([island/0, external/0]).
 
 %% The effect of a contact with a body outside the island, for the member
@@ -35,7 +41,13 @@
     %% may touch while no member has moved farther
     anchors = undefined :: tuple() | undefined,
     limit = 0.0 :: float(),
-    pairs = [] :: [{pos_integer(), pos_integer()}]
+    pairs = [] :: [{pos_integer(), pos_integer()}],
+    %% the fixtures each member may touch (all of them when no fixture has a
+    %% bounding box), while it stays within flimit of its fanchor
+    bounded :: boolean(),
+    near :: tuple(),
+    fanchors = undefined :: tuple() | undefined,
+    flimit = 0.0 :: float()
 }).
 -opaque island() :: #island{}.
 
@@ -45,7 +57,8 @@ new(Model, Spheres0, Fixtures) ->
     RMax = lists:max([R || #sphere{radius = R} <- Spheres]),
     #island{model = Model, spheres = list_to_tuple(Spheres), fixtures = Fixtures,
             pos = maps:from_list(lists:zip([I || #sphere{idx = I} <- Spheres], lists:seq(1, length(Spheres)))),
-            skin = 0.5 * RMax}.
+            skin = 0.5 * RMax, bounded = lists:any(fun(#fixture{box = B}) -> B =/= unbounded end, Fixtures),
+            near = list_to_tuple([Fixtures || _ <- Spheres])}.
 
 -spec size(island()) -> pos_integer().
 size(#island{spheres = S}) -> tuple_size(S).
@@ -54,13 +67,15 @@ size(#island{spheres = S}) -> tuple_size(S).
 %% member at this substep, from their pre-response States (a tuple in idx
 %% order) and the External effects.
 -spec posts(island(), tuple(), [external()]) -> {tuple(), island()}.
-posts(#island{model = M, spheres = {S}, fixtures = Fixtures} = I, {St}, External) ->
-    {{alone(M, S, St, Fixtures, External)}, I};
-posts(#island{model = M, spheres = Spheres, fixtures = Fixtures, pos = Pos} = I0, States, External) ->
+posts(#island{spheres = {_}} = I0, {St}, External) ->
+    {Post, I} = post(I0, St, External),
+    {{Post}, I};
+posts(#island{model = M, spheres = Spheres, pos = Pos} = I0, States, External) ->
     N = tuple_size(Spheres),
     Disps = displacements(M, States),
-    {Pairs, I} = neighbours(I0, States, Disps),
-    Fixed = list_to_tuple([rw_dynamics:fixture_effects(M, element(K, Spheres), element(K, States), Fixtures)
+    {Pairs, I1} = neighbours(I0, States, Disps),
+    #island{near = Near} = I = fixtures_near(I1, States, Disps),
+    Fixed = list_to_tuple([rw_dynamics:fixture_effects(M, element(K, Spheres), element(K, States), element(K, Near))
                            || K <- lists:seq(1, N)]),
     Seen = list_to_tuple([rw_dynamics:after_fixtures(element(K, States), element(K, Fixed))
                           || K <- lists:seq(1, N)]),
@@ -73,9 +88,8 @@ posts(#island{model = M, spheres = Spheres, fixtures = Fixtures, pos = Pos} = I0
 
 %% The posts at this substep, and the members' next pre-response states.
 -spec step(island(), tuple(), [external()]) -> {tuple(), tuple(), island()}.
-step(#island{model = M, spheres = {S}, fixtures = Fixtures} = I, {St}, External) ->
-    %% (most entities are one body: this is the hot path of free flight)
-    {V, W, U} = Post = alone(M, S, St, Fixtures, External),
+step(#island{model = M, spheres = {_}} = I0, {St}, External) ->
+    {{V, W, U} = Post, I} = post(I0, St, External),
     {{Post}, {rw_integrate:advance(M, St, V, W, U)}, I};
 step(#island{model = M} = I0, States, External) ->
     {Posts, I} = posts(I0, States, External),
@@ -85,10 +99,16 @@ step(#island{model = M} = I0, States, External) ->
                           end || K <- lists:seq(1, tuple_size(States))]),
     {Posts, Next, I}.
 
-%% The post-response velocities of a body on its own (an island of one,
-%% the most common entity): its fixtures and the outside.
--spec alone(#model{}, #sphere{}, #st{}, [#fixture{}], [external()]) ->
-          {rw_vec:vec(), rw_vec:vec() | undefined, rw_vec:vec()}.
+%% The post-response velocities of the one member of an island of one (the
+%% most common entity, and the hot path of free flight): its fixtures and
+%% the outside.
+-spec post(island(), #st{}, [external()]) -> {{rw_vec:vec(), rw_vec:vec() | undefined, rw_vec:vec()}, island()}.
+post(#island{model = M, spheres = {S}, bounded = false, fixtures = Fixtures} = I, St, External) ->
+    {alone(M, S, St, Fixtures, External), I};
+post(#island{model = M, spheres = {S}} = I0, St, External) ->
+    #island{near = {Near}} = I = fixtures_near(I0, {St}, displacements(M, {St})),
+    {alone(M, S, St, Near, External), I}.
+
 alone(M, S, St, Fixtures, []) -> respond(St, rw_dynamics:fixture_effects(M, S, St, Fixtures), []);
 alone(M, S, St, Fixtures, External) ->
     respond(St, rw_dynamics:fixture_effects(M, S, St, Fixtures), lists:keysort(1, [Keyed || {_, Keyed} <- External])).
@@ -134,6 +154,54 @@ take(_K, Rest, Acc) -> {lists:reverse(Acc), Rest}.
 %% With CCD, each member's free displacement over the substep.
 displacements(#model{ccd = false}, _States) -> undefined;
 displacements(M, States) -> list_to_tuple([rw_integrate:free_displacement(M, St) || St <- tuple_to_list(States)]).
+
+%%% The fixtures near each member
+
+fixtures_near(#island{bounded = false} = I, _States, _Disps) -> I;
+fixtures_near(#island{fanchors = undefined} = I, States, Disps) -> fixtures_fresh(I, States, Disps);
+fixtures_near(#island{fanchors = Anchors, flimit = Limit} = I, States, Disps) ->
+    case fixtures_within(tuple_size(States), States, Anchors, Disps, Limit) of
+        true -> I;
+        false -> fixtures_fresh(I, States, Disps)
+    end.
+
+%% The fixtures near each member now, kept while it stays within half a
+%% skin of here; a list not valid even now (a displacement longer than
+%% that) lists every fixture, and the next substep builds again.
+fixtures_fresh(#island{spheres = Spheres, fixtures = Fixtures} = I, States, Disps) ->
+    Anchors = list_to_tuple([P || #st{p = P} <- tuple_to_list(States)]),
+    Reach = lists:max([R || #sphere{radius = R} <- tuple_to_list(Spheres)]),
+    Scale = lists:max([rw_vec:max_abs(P) || P <- tuple_to_list(Anchors)]) + 2.0 * Reach,
+    Limit = 0.5 * Reach - 1.0e-9 * Scale,
+    case fixtures_within(tuple_size(States), States, Anchors, Disps, Limit) of
+        true ->
+            Near = list_to_tuple([[F || F <- Fixtures, may_touch(F, element(K, Anchors), R + 0.5 * Reach)]
+                                  || {K, #sphere{radius = R}} <- lists:zip(lists:seq(1, tuple_size(Spheres)),
+                                                                           tuple_to_list(Spheres))]),
+            I#island{near = Near, fanchors = Anchors, flimit = Limit};
+        false ->
+            I#island{near = list_to_tuple([Fixtures || _ <- tuple_to_list(Spheres)]), fanchors = undefined}
+    end.
+
+%% A fixture may touch a sphere whose centre stays within Reach of P (the
+%% narrowphase rejects a sphere farther than its radius outside the box).
+may_touch(#fixture{box = unbounded}, _P, _Reach) -> true;
+may_touch(#fixture{box = {X0, Y0, Z0, X1, Y1, Z1}}, {X, Y, Z}, Reach) ->
+    not (X + Reach < X0 orelse X - Reach > X1 orelse Y + Reach < Y0 orelse Y - Reach > Y1 orelse
+         Z + Reach < Z0 orelse Z - Reach > Z1).
+
+fixtures_within(0, _States, _Anchors, _Disps, _Limit) -> true;
+fixtures_within(K, States, Anchors, Disps, Limit) ->
+    #st{p = P} = element(K, States),
+    Moved = rw_vec:len(rw_vec:sub(P, element(K, Anchors))),
+    Swept = case Disps of
+                undefined -> 0.0;
+                _ -> rw_vec:len(element(K, Disps))
+            end,
+    case Moved + Swept =< Limit of
+        true -> fixtures_within(K - 1, States, Anchors, Disps, Limit);
+        false -> false
+    end.
 
 %%% The neighbour list
 

@@ -1,0 +1,55 @@
+%% Contact groups: who joins, who stays, the cap, and who moves.
+-module(rw_regroup_tests).
+-include_lib("eunit/include/eunit.hrl").
+
+%% Bodies of radius 0.5 on the x axis: {Idx, X, Vx}.
+bodies(Specs) -> [{I, 0.5, {X, 0.0, 0.0}, {V, 0.0, 0.0}} || {I, X, V} <- Specs].
+
+alone(Bodies) -> maps:from_list([{I, I} || {I, _, _, _} <- Bodies]).
+
+plan(Bodies, Old, Max) -> rw_regroup:plan(Bodies, Old, Max, rw_regroup:touching(Bodies)).
+
+resting_contact_joins_test() ->
+    B = bodies([{3, 0.0, 0.0}, {7, 0.99, 0.0}, {9, 5.0, 0.0}]),
+    ?assertEqual(#{3 => 3, 7 => 3, 9 => 9}, plan(B, alone(B), 64)).
+
+a_touch_not_seen_before_does_not_join_test() ->
+    B = bodies([{3, 0.0, 0.0}, {7, 0.99, 0.0}]),
+    ?assertEqual(alone(B), rw_regroup:plan(B, alone(B), 64, #{})).
+
+bounce_does_not_join_test() ->
+    %% touching, but flying apart at 2 m/s (the limit is 0.5 m/s here)
+    B = bodies([{3, 0.0, -1.0}, {7, 0.99, 1.0}]),
+    ?assertEqual(alone(B), plan(B, alone(B), 64)).
+
+cap_test() ->
+    B = bodies([{I, I * 0.99, 0.0} || I <- lists:seq(1, 7)]),
+    New = plan(B, alone(B), 3),
+    Sizes = maps:values(maps:fold(fun(_, L, Acc) -> maps:update_with(L, fun(N) -> N + 1 end, 1, Acc) end, #{}, New)),
+    ?assert(lists:max(Sizes) =< 3),
+    ?assert(length(Sizes) =< 4),
+    %% each group is named by its lowest member
+    [?assert(L =< I) || {I, L} <- maps:to_list(New)].
+
+stay_margin_test() ->
+    Together = #{3 => 3, 7 => 3},
+    %% apart by 1.2 x the sum of radii: still one group, however they move
+    Near = bodies([{3, 0.0, -5.0}, {7, 1.2, 5.0}]),
+    ?assertEqual(Together, plan(Near, Together, 64)),
+    Far = bodies([{3, 0.0, 0.0}, {7, 1.3, 0.0}]),
+    ?assertEqual(alone(Far), plan(Far, Together, 64)).
+
+eager_joins_near_bodies_test() ->
+    B = bodies([{3, 0.0, -9.0}, {7, 2.5, 9.0}, {9, 9.0, 0.0}]),
+    ?assertEqual(#{3 => 3, 7 => 3, 9 => 9}, rw_regroup:plan(B, alone(B), 64, eager)).
+
+moves_test() ->
+    Pids = #{3 => pid3, 7 => pid7, 9 => pid9},
+    Old = #{3 => 3, 7 => 7, 9 => 9},
+    New = #{3 => 3, 7 => 3, 9 => 9},
+    ?assertEqual(#{3 => #{send => [{3, 3, pid3}], gather => [3, 7]}, 7 => #{send => [{7, 3, pid3}]}},
+                 rw_regroup:moves(Old, New, Pids)),
+    %% and back apart: the leader sends both, 7 gathers itself
+    ?assertEqual(#{3 => #{send => [{3, 3, pid3}, {7, 7, pid7}], gather => [3]}, 7 => #{gather => [3]}},
+                 rw_regroup:moves(New, Old, Pids)),
+    ?assertEqual(#{}, rw_regroup:moves(New, New, Pids)).
