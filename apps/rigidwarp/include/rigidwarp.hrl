@@ -39,11 +39,12 @@
     profile = false :: boolean(),             % time the engine's stages (rw_timewarp:stats/1)
     lvts :: atomics:atomics_ref(),            % every body's LVT, at rw_timewarp:lvt_slot(Idx)
     gvt_now :: atomics:atomics_ref(),         % GVT (slot 1), which bodies read when they step
-    %% contact groups (rw_regroup): bodies regroup at multiples of period,
-    %% which is a multiple of the stride (0: each body stays on its own)
+    %% contact groups (rw_regroup): bodies may regroup at every multiple of
+    %% period (0: each body stays on its own), planned a period earlier
     period = 0 :: non_neg_integer(),          % ticks
     group_max = 1 :: pos_integer(),           % the most bodies in one group
     grouping = persistent :: persistent | eager,   % eager: tests only
     plans :: ets:tid(),                       % {{S, Idx}, rw_regroup:move()}: what body Idx does at S
+    met :: ets:tid(),                         % {{A, B}, T}: A met B at many substeps (rw_body:touch/5)
     owners :: ets:tid()                       % {Idx, Pid}: the entity that steps body Idx
 }).

@@ -17,11 +17,14 @@
 %%            process is to lead.
 %%
 %% Groups change only at regroup points S (multiples of #sim.period) that
-%% GVT has reached: the GVT process plans them a period ahead, every entity
-%% involved stops at S, and once GVT is S (no rollback can reach S or
-%% earlier, and no message about a state at S or later is on its way) the
-%% old leaders send each member's state and post-response velocities at S
-%% to its new leader. No message ever has to follow a body to its new
+%% GVT has reached: the GVT process plans them a period ahead and tells
+%% every entity whose group changes ({regroup, S}); such an entity rolls
+%% back to S if it is past it (any time at or after GVT is a legal rollback
+%% target), says so, and stops at S, and GVT does not pass S before all of
+%% them have said so. Once GVT is S (no rollback can reach S or earlier,
+%% and no message about a state at S or later is on its way) the old
+%% leaders send each member's state and post-response velocities at S to
+%% its new leader. No message ever has to follow a body to its new
 %% process.
 %%
 %% Timeline: written holds every write to the TVHT from GVT to LVT with
@@ -89,14 +92,19 @@
     window = 1 :: pos_integer(),
     gc_at = 0 :: non_neg_integer(),            % next GVT at which to prune history
     wake_at = none :: none | integer(),        % the GVT rw_gvt will wake this body at
-    regroup_at :: non_neg_integer(),           % the next regroup point not passed yet
+    %% the regroup points where this entity's group changes, ascending (an
+    %% entity that leads a new group at S may hear of the next one before
+    %% it has handed over at S)
+    stop_at = [] :: [non_neg_integer()],
     %% each write: its substeps T0..UpTo, where it went, and each member's
     %% states (from T0 on, one per substep), newest first
     written = [] :: [{non_neg_integer(), non_neg_integer(), [{non_neg_integer(), pid(), [rw_hash:cell()]}],
                       tuple()}],
     %% the latest two substeps at which a member touched each outside body
-    %% (the earlier one is none after a single touch), for the neighbour rule
-    touched = #{} :: #{non_neg_integer() => {non_neg_integer(), non_neg_integer() | none}},
+    %% (the earlier one is none after a single touch), for the neighbour
+    %% rule, and at how many substeps it has touched it since it last said
+    %% so in #sim.met
+    touched = #{} :: #{non_neg_integer() => {non_neg_integer(), non_neg_integer() | none, non_neg_integer()}},
     %% processes waiting for this one to reach an LVT: Pid => LVT
     watchers = #{} :: #{pid() => non_neg_integer()},
     watching = none :: none | {non_neg_integer(), non_neg_integer()},
@@ -152,11 +160,11 @@ callback_mode() -> state_functions.
 
 -spec init({#sim{}, #sphere{}, #st{}}) -> gen_statem:init_result(ready).
 init({#sim{scene = #scene{model = M, substep = Dt, frame = F, stride = Stride, fixtures = Fixtures},
-           end_t = End, period = Period, owners = Owners} = Sim,
+           end_t = End, owners = Owners} = Sim,
       #sphere{idx = Idx, id = Id} = Sphere, St0}) ->
     ets:insert(Owners, {Idx, self()}),
     D = #d{sim = Sim, idx = Idx, id = Id, model = M, fixtures = Fixtures, dt = Dt, frame = F, end_t = End,
-           stride = Stride, start = {St0}, regroup_at = Period},
+           stride = Stride, start = {St0}},
     {ok, ready, members([Sphere], D)}.
 
 %% This process steps Spheres from now on.
@@ -221,7 +229,7 @@ step(timeout, step, D0) ->
                     {keep_state, (wait(Capped, commit_lvt(D)))#d{idle = true}}
             end
     end;
-step(info, {bundle, S, _, _}, #d{lvt = S, regroup_at = S, sim = #sim{plans = Plans}, idx = Idx} = D0) ->
+step(info, {bundle, S, _, _}, #d{lvt = S, stop_at = [S | _], sim = #sim{plans = Plans}, idx = Idx} = D0) ->
     %% a new member arrives before this entity has seen GVT reach the
     %% regroup point: hand over now, and take the bundle in in gather
     D = read_gvt(D0),
@@ -246,6 +254,7 @@ common(info, {gvt, _} = Msg, D) -> settle(?TIMED(D, ?ST_RED_GVT, on_message(Msg,
 common(info, {watch, _, _} = Msg, #d{idle = true} = D) -> {keep_state, on_message(Msg, D)};
 common(info, {watch, _, _} = Msg, D) -> settle(on_message(Msg, D));
 common(info, {reached, _, _} = Msg, D) -> settle(on_message(Msg, D));
+common(info, {regroup, _} = Msg, D) -> settle(on_message(Msg, D));
 common(timeout, step, D) ->
     settle(D);
 common(info, {bundle, _, _, _} = Msg, D) ->
@@ -261,6 +270,11 @@ common(Type, Msg, D) ->
 member(info, {bundle, S, _, _}, #d{sim = #sim{plans = Plans}, idx = Idx} = D) ->
     [{_, #{gather := From}}] = ets:lookup(Plans, {S, Idx}),
     {next_state, gather, D#d{gathering = {S, From, []}, lvt = S, gvt = S}, [postpone]};
+member(info, {regroup, S}, #d{sim = #sim{gvt = Gvt}} = D) ->
+    %% this body leads a group from the regroup point before S (its first
+    %% member is on the way) and that group changes again at S
+    Gvt ! {regroup_ack, S, self()},
+    {keep_state, D#d{stop_at = lists:usort([S | D#d.stop_at])}};
 member(info, {watch, Pid, _}, #d{idx = Idx, lvt = Lvt}) ->
     %% its leader holds its LVT: let the watcher look again
     Pid ! {reached, Idx, Lvt},
@@ -281,6 +295,9 @@ gather(info, {bundle, S, From, Items}, #d{gathering = {S, Expect, Got0}} = D) ->
     end;
 gather(info, {watch, Pid, T}, D) ->
     {keep_state, on_watch(Pid, T, D)};
+gather(info, {regroup, S}, #d{gathering = {Now, _, _}} = D) when S > Now ->
+    %% the group this process gathers changes again at S
+    {keep_state, on_regroup(S, D)};
 gather(info, Msg, _D) when element(1, Msg) =:= gvt; element(1, Msg) =:= reached ->
     keep_state_and_data;
 gather(Type, Msg, D) ->
@@ -300,7 +317,8 @@ on_message({ack, event, Cid}, #d{pend_ev = P} = D) -> D#d{pend_ev = maps:remove(
 on_message({ack, anti, Cid}, #d{pend_anti = P} = D) -> D#d{pend_anti = maps:remove(Cid, P)};
 on_message({gvt, G}, D) -> on_gvt(G, D#d{wake_at = none});
 on_message({watch, Pid, T}, D) -> on_watch(Pid, T, D);
-on_message({reached, _Idx, _T}, D) -> D#d{watching = none}.
+on_message({reached, _Idx, _T}, D) -> D#d{watching = none};
+on_message({regroup, S}, D) -> on_regroup(S, D).
 
 %% Take in every protocol message already in the mailbox (a timeout-0
 %% step would otherwise run before them); true if there was any.
@@ -311,7 +329,8 @@ drain(D, Any) ->
         {ack, _, _} = Msg -> drain(on_message(Msg, D), true);
         {gvt, _} = Msg -> drain(on_message(Msg, D), true);
         {watch, _, _} = Msg -> drain(on_message(Msg, D), true);
-        {reached, _, _} = Msg -> drain(on_message(Msg, D), true)
+        {reached, _, _} = Msg -> drain(on_message(Msg, D), true);
+        {regroup, _} = Msg -> drain(on_message(Msg, D), true)
     after 0 -> {Any, D}
     end.
 
@@ -322,18 +341,26 @@ settle(D) -> {next_state, step, D#d{idle = false}, [{timeout, 0, step}]}.
 %%% Contact groups
 
 %% How far the entity may step (LVT_ub, Last) and whether that is capped at
-%% a regroup point S where its group changes; there, once GVT is S, it
-%% hands over. Every regroup point before Last has been planned (the GVT
-%% process plans S when GVT reaches S - period, and Last > S needs GVT
-%% past that).
-regroup(Last, #d{sim = #sim{period = 0}} = D) -> {Last, false, D};
-regroup(Last, #d{regroup_at = S} = D) when S >= Last -> {Last, false, D};
-regroup(Last, #d{regroup_at = S, lvt = Lvt, gvt = G, sim = #sim{period = P, plans = Plans}, idx = Idx} = D) ->
-    case ets:lookup(Plans, {S, Idx}) of
-        [{_, #{send := _} = Move}] when Lvt =:= S, G >= S -> {handover, Move, D};
-        [{_, #{send := _}}] -> {S, true, D};
-        _ -> regroup(Last, D#d{regroup_at = S + P})
-    end.
+%% the regroup point S where its group changes; there, once GVT is S, it
+%% hands over.
+regroup(Last, #d{stop_at = []} = D) -> {Last, false, D};
+regroup(Last, #d{stop_at = [S | _]} = D) when S >= Last -> {Last, false, D};
+regroup(_Last, #d{stop_at = [S | _], lvt = S, gvt = G, sim = #sim{plans = Plans}, idx = Idx} = D) when G >= S ->
+    [{_, Move}] = ets:lookup(Plans, {S, Idx}),
+    {handover, Move, D};
+regroup(_Last, #d{stop_at = [S | _]} = D) -> {S, true, D}.
+
+%% The GVT process says this entity's group changes at S: stop there,
+%% rolling back to S first if it is already past (its states after S are
+%% no use to the new group), and say so. The state at S and its commit
+%% stay: no contact at S changes.
+on_regroup(S, #d{lvt = Lvt, sim = #sim{gvt = Gvt}} = D0) ->
+    D = case Lvt > S of
+            true -> roll_back(S, keep, D0);
+            false -> D0
+        end,
+    Gvt ! {regroup_ack, S, self()},
+    D#d{stop_at = lists:usort([S | D#d.stop_at])}.
 
 %% At the regroup point S, with GVT at S: send every member's state and
 %% post-response velocities at S to its new leader, then lead a new group
@@ -351,7 +378,7 @@ handover(#{send := Sends} = Move, #d{lvt = S, idx = Idx, spheres = Spheres, pos 
     _ = [Pid ! {reached, Idx, S} || Pid <- maps:keys(W)],
     Left = D#d{spheres = {}, idxs = [], pos = #{}, island = undefined, base = none, contacts = #{},
                ghosts = #{}, committed = [], written = [], touched = #{}, watchers = #{}, watching = none,
-               idle = false, wake_at = none},
+               idle = false, wake_at = none, stop_at = tl(D#d.stop_at)},
     case Move of
         #{gather := From} -> {next_state, gather, Left#d{gathering = {S, From, []}}};
         _ -> {next_state, member, Left}
@@ -359,12 +386,13 @@ handover(#{send := Sends} = Move, #d{lvt = S, idx = Idx, spheres = Spheres, pos 
 
 %% The group this process leads from S on, from its members' states and
 %% post-response velocities at S.
-form(S, Items, #d{model = M, sim = #sim{owners = Owners, period = P}} = D0) ->
+form(S, Items, #d{model = M, sim = #sim{owners = Owners}} = D0) ->
     Sorted = lists:keysort(1, [{I, Item} || {#sphere{idx = I}, _, _} = Item <- Items]),
     D1 = members([Sp || {_, {Sp, _, _}} <- Sorted], D0),
     Packed = list_to_tuple([rw_states:pack([St], undefined, M#model.rotation, false) || {_, {_, St, _}} <- Sorted]),
     ets:insert(Owners, [{I, self()} || {I, _} <- Sorted]),
-    publish_lvt(D1#d{lvt = S, gvt = S, gc_at = S + D1#d.stride, regroup_at = S + P,
+    %% (stop_at stays: a later regroup point may have been announced already)
+    publish_lvt(D1#d{lvt = S, gvt = S, gc_at = S + D1#d.stride,
                      base = {S, list_to_tuple([Post || {_, {_, _, Post}} <- Sorted])},
                      written = [{S, S, [], Packed}], window = 1, gathering = none}).
 
@@ -398,7 +426,7 @@ external(T, #d{contacts = Contacts}) ->
 neighbour_limit(#d{touched = Touched}) when map_size(Touched) =:= 0 -> none;
 neighbour_limit(#d{lvt = Lvt, dt = Dt, touched = Touched, sim = #sim{lvts = Lvts}}) ->
     Since = Lvt - ?RECENT_SUBSTEPS * Dt,
-    maps:fold(fun(PIdx, {T, Before}, Best) when T > Since, is_integer(Before),
+    maps:fold(fun(PIdx, {T, Before, _}, Best) when T > Since, is_integer(Before),
                                                 Before >= T - ?RECENT_SUBSTEPS * Dt ->
                       L = atomics:get(Lvts, rw_timewarp:lvt_slot(PIdx)) + Dt,
                       case Best of
@@ -410,7 +438,7 @@ neighbour_limit(#d{lvt = Lvt, dt = Dt, touched = Touched, sim = #sim{lvts = Lvts
 
 %% Forget touches too old to matter (now and then: at each stride's GC).
 forget_touches(Since, #d{touched = Touched} = D) ->
-    D#d{touched = maps:filter(fun(_, {T, _}) -> T > Since end, Touched)}.
+    D#d{touched = maps:filter(fun(_, {T, _, _}) -> T > Since end, Touched)}.
 
 %% Ask the entity stepping body PIdx to tell us when it reaches our LVT
 %% (once per wait).
@@ -678,7 +706,7 @@ send_events(T, Hits, Ids, #d{spheres = Spheres, pos = Pos, model = M, contacts =
                                   end,
                   Cid = maps:get({Idx, OIdx}, Ids),
                   send(OPid, {event, Cid, T, Idx, self(), OIdx, Theirs}, D),
-                  {Acc#{Cid => {Idx, OIdx, Own}}, P#{Cid => true}, touch(OIdx, T, Tch)}
+                  {Acc#{Cid => {Idx, OIdx, Own}}, P#{Cid => true}, touch(Idx, OIdx, T, Tch, D)}
           end, {maps:get(T, Contacts, #{}), D#d.pend_ev, D#d.touched}, Hits),
     counters:add(D#d.sim#sim.stats, ?ST_EVENTS, length(Hits)),
     D#d{contacts = Contacts#{T => Mine}, pend_ev = Pend, touched = Touched}.
@@ -686,11 +714,20 @@ send_events(T, Hits, Ids, #d{spheres = Spheres, pos = Pos, model = M, contacts =
 seen_by_pairs(S, St, #d{model = M, fixtures = Fixtures}) ->
     rw_dynamics:after_fixtures(St, rw_dynamics:fixture_effects(M, S, St, Fixtures)).
 
-touch(PIdx, T, Touched) ->
+%% Member Idx touches the outside body PIdx at T. Every ?MET substeps of
+%% touching are said in #sim.met: bodies that meet that often (bouncing on
+%% each other again and again, as Cylinders' layers do when they land)
+%% are worth one group even when they move apart fast (rw_regroup).
+-define(MET, 8).
+
+touch(Idx, PIdx, T, Touched, #d{sim = #sim{met = Met}}) ->
     case Touched of
-        #{PIdx := {Last, _}} when Last >= T -> Touched;
-        #{PIdx := {Last, _}} -> Touched#{PIdx := {T, Last}};
-        _ -> Touched#{PIdx => {T, none}}
+        #{PIdx := {Last, _, _}} when Last >= T -> Touched;
+        #{PIdx := {Last, _, N}} when N + 1 >= ?MET ->
+            ets:insert(Met, {{min(Idx, PIdx), max(Idx, PIdx)}, T}),
+            Touched#{PIdx := {T, Last, 0}};
+        #{PIdx := {Last, _, N}} -> Touched#{PIdx := {T, Last, N + 1}};
+        _ -> Touched#{PIdx => {T, none, 1}}
     end.
 
 swap({A, B}) -> {B, A}.
@@ -709,10 +746,10 @@ on_event(Cid, T, FromIdx, From, ToIdx, Effect, #d{ghosts = Ghosts, lvt = Lvt, co
             D;
         error ->
             D1 = D#d{contacts = Contacts#{T => (maps:get(T, Contacts, #{}))#{Cid => {ToIdx, FromIdx, Effect}}},
-                     touched = touch(FromIdx, T, D#d.touched)},
+                     touched = touch(ToIdx, FromIdx, T, D#d.touched, D)},
             D2 = case T < Lvt of
                      true -> counters:add(D#d.sim#sim.stats, ?ST_PRIMARY, 1),
-                             roll_back(T, D1);
+                             roll_back(T, withdraw, D1);
                      false -> withdraw(T, D1)
                  end,
             send(From, {ack, event, Cid}, D2),
@@ -727,7 +764,7 @@ on_antievent(Cid, T, From, #d{contacts = Contacts, lvt = Lvt} = D) ->
                           pend_ev = maps:remove(Cid, D#d.pend_ev)},
                  case T < Lvt of
                      true -> counters:add(D#d.sim#sim.stats, ?ST_SECONDARY, 1),
-                             roll_back(T, D1);
+                             roll_back(T, withdraw, D1);
                      false -> withdraw(T, D1)
                  end;
              false ->
@@ -738,11 +775,14 @@ on_antievent(Cid, T, From, #d{contacts = Contacts, lvt = Lvt} = D) ->
     D2.
 
 %% Go back to R: delete the states after R from the TVHT, send antievents
-%% for the contacts they had, forget commits from R on.
-roll_back(R, #d{lvt = Lvt} = D) when R >= Lvt -> withdraw(R, D);
-roll_back(R, D) -> ?TIMED(D, ?ST_RED_ROLLBACK, undo(R, D)).
+%% for the contacts they had, and forget commits from R on (withdraw: a new
+%% contact at R changes the post-response velocities there) or after R
+%% (keep: nothing at R changes).
+roll_back(R, withdraw, #d{lvt = Lvt} = D) when R >= Lvt -> withdraw(R, D);
+roll_back(R, keep, #d{lvt = Lvt} = D) when R >= Lvt -> D;
+roll_back(R, Commit, D) -> ?TIMED(D, ?ST_RED_ROLLBACK, undo(R, Commit, D)).
 
-undo(R, #d{idxs = Idxs, lvt = Lvt, dt = Dt, contacts = Contacts, sim = Sim, written = Written} = D) ->
+undo(R, Commit, #d{idxs = Idxs, lvt = Lvt, dt = Dt, contacts = Contacts, sim = Sim, written = Written} = D) ->
     %% every bucket holding a state after R, with the cells it holds them in
     Where = lists:foldl(fun({B, Pid, Cells}, Acc) ->
                                 maps:update_with({B, Pid}, fun(Cs) -> Cells ++ Cs end, Cells, Acc)
@@ -775,7 +815,8 @@ undo(R, #d{idxs = Idxs, lvt = Lvt, dt = Dt, contacts = Contacts, sim = Sim, writ
           end, {D#d.pend_anti, D#d.ghosts}, Lost),
     counters:add(Sim#sim.stats, ?ST_ANTIEVENTS, map_size(PendAnti) - map_size(D#d.pend_anti)),
     Keep = fun(T, _) -> T =< R end,
-    withdraw(R, publish_lvt(D#d{lvt = R, contacts = maps:filter(Keep, Contacts),
+    From = case Commit of withdraw -> R; keep -> R + 1 end,
+    withdraw(From, publish_lvt(D#d{lvt = R, contacts = maps:filter(Keep, Contacts),
                     pend_ev = #{}, pend_anti = PendAnti, ghosts = Ghosts, written = Written1,
                     window = max(1, D#d.window div 2)})).
 
@@ -792,9 +833,13 @@ read_gvt(#d{sim = #sim{gvt_now = Ref}} = D) -> on_gvt(atomics:get(Ref, 1), D).
 %% late would stall.
 wait(true, #d{lvt = S} = D) -> wake_at(S, D);
 wait(false, #d{lvt = Lvt, end_t = End} = D) when Lvt >= End -> D;
-wait(false, #d{lvt = Lvt, gvt = G, stride = S, frame = F, end_t = End} = D) ->
+wait(false, #d{lvt = Lvt, gvt = G, stride = S, end_t = End} = D) ->
     MinStep = min_step(D),
-    wake_at(max(G + 1, lists:min([Lvt + MinStep - S, End - S, max(Lvt div F * F, Lvt div S * S)])), D).
+    wake_at(max(G + 1, lists:min([Lvt + MinStep - S, End - S, last_sync(Lvt, D)])), D).
+
+%% The last sync point at or before T.
+last_sync(T, #d{frame = F, stride = S, sim = #sim{period = P}}) ->
+    max(max(T div F * F, T div S * S), case P of 0 -> 0; _ -> T div P * P end).
 
 wake_at(At, #d{wake_at = Asked} = D) when is_integer(Asked), Asked =< At -> D;   % already asked for as early
 wake_at(At, D) ->
@@ -810,11 +855,13 @@ min_step(#d{stride = S, dt = Dt}) -> max(Dt, (S * 3 div 4) div Dt * Dt).
 
 %% The first sync point after GVT: GVT cannot advance before every body
 %% has reached it.
-next_sync(#d{gvt = G, frame = F, stride = S, end_t = End}) -> rw_gvt:sync_after(G, F, S, End).
+next_sync(#d{gvt = G, sim = Sim}) -> rw_gvt:sync_after(G, Sim).
 
 %% Bodies commit at every frame time and every multiple of the stride, so
-%% that GVT can always advance far enough for LVT_ub to reach the next one.
-is_sync(T, #d{frame = F, stride = S, end_t = End}) -> T rem F =:= 0 orelse T rem S =:= 0 orelse T =:= End.
+%% that GVT can always advance far enough for LVT_ub to reach the next one,
+%% and at every regroup point, where groups change once GVT is there.
+is_sync(T, #d{frame = F, stride = S, end_t = End, sim = #sim{period = P}}) ->
+    T rem F =:= 0 orelse T rem S =:= 0 orelse T =:= End orelse (P > 0 andalso T rem P =:= 0).
 
 %% Commit every member's state at T: its record, and the count of bodies
 %% committed at T.

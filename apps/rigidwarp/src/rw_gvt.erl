@@ -10,16 +10,18 @@
 %% per body.
 %%
 %% Contact groups: at every regroup point X (a multiple of #sim.period)
-%% it plans the groups from the committed states at X (rw_regroup) and
-%% writes who moves at X + period into the plans table, before it
-%% publishes the GVT that lets any body step past X + period.
+%% it plans the groups at S = X + period from the committed states at X
+%% (rw_regroup), writes who moves then into the plans table, and tells
+%% every entity whose group changes ({regroup, S}); GVT does not pass S
+%% before each of them has answered (rolled back to S if it was past it,
+%% and stopped there).
 %%
 %% A watchdog stops the run with a diagnostic naming every body's phase,
 %% LVT and awaited acknowledgements if GVT does not advance for a while.
 -module(rw_gvt).
 -behaviour(gen_server).
 -include("rigidwarp.hrl").
--export([start_link/0, go/4, subscribe/2, latest/1, frame_at/2, frames_after/3, gvt/1, sync_after/4, wake_at/3]).
+-export([start_link/0, go/4, subscribe/2, latest/1, frame_at/2, frames_after/3, gvt/1, sync_after/2, wake_at/3]).
 -export([init/1, handle_call/3, handle_cast/2, handle_info/2]).
 
 -record(s, {
@@ -37,7 +39,9 @@
     pids = #{} :: #{non_neg_integer() => pid()},        % body idx => process
     radii = #{} :: #{non_neg_integer() => float()},
     leaders = #{} :: rw_regroup:leaders(),              % the groups planned last
-    touching = #{} :: rw_regroup:pairs()                % at the sync point before a regroup point
+    grouped = false :: boolean(),                       % ... and whether any has two bodies or more
+    %% regroup points with entities that have not answered {regroup, S} yet
+    unready = #{} :: #{non_neg_integer() => [pid()]}
 }).
 
 -spec start_link() -> {ok, pid()}.
@@ -113,6 +117,13 @@ handle_info({complete, T}, #s{complete = C, sim = #sim{stats = Stats}} = S) ->
     %% counter 10 is gvt_reductions (rw_timewarp's stat names)
     counters:add(Stats, 10, reductions() - T0),
     {noreply, S1};
+handle_info({regroup_ack, At, Pid}, #s{unready = U} = S) ->
+    Left = lists:delete(Pid, maps:get(At, U)),
+    S1 = case Left of
+             [] -> S#s{unready = maps:remove(At, U)};
+             _ -> S#s{unready = U#{At := Left}}
+         end,
+    {noreply, advance(S1)};
 handle_info({wake_at, Pid, At}, #s{gvt = G} = S) when At =< G ->
     Pid ! {gvt, G},
     {noreply, S};
@@ -137,14 +148,16 @@ handle_info(Msg, S) ->
 
 %% GVT advances through the sync points: frame times, multiples of the
 %% stride, and the end time. Frames are written at frame times only.
-next_sync(#s{gvt = G, sim = #sim{scene = #scene{frame = F, stride = S}, end_t = End}}) ->
-    sync_after(G, F, S, End).
+next_sync(#s{gvt = G, sim = Sim}) -> sync_after(G, Sim).
 
-%% The first sync point after G (G < 0: before the first frame). Bodies use
-%% it too: GVT cannot pass it before every body has reached it.
--spec sync_after(integer(), pos_integer(), pos_integer(), non_neg_integer()) -> non_neg_integer().
-sync_after(G, _F, _S, _End) when G < 0 -> 0;
-sync_after(G, F, S, End) -> min(min((G div F + 1) * F, (G div S + 1) * S), End).
+%% The first sync point after G (G < 0: before the first frame): the next
+%% frame time, multiple of the stride or regroup point, or the end. Bodies
+%% use it too: GVT cannot pass it before every body has reached it.
+-spec sync_after(integer(), #sim{}) -> non_neg_integer().
+sync_after(G, _Sim) when G < 0 -> 0;
+sync_after(G, #sim{scene = #scene{frame = F, stride = S}, period = P, end_t = End}) ->
+    Regroup = case P of 0 -> End; _ -> (G div P + 1) * P end,
+    lists:min([(G div F + 1) * F, (G div S + 1) * S, Regroup, End]).
 
 is_frame(T, #sim{scene = #scene{frame = F}, end_t = End}) -> T rem F =:= 0 orelse T =:= End.
 
@@ -176,56 +189,73 @@ advance(#s{gvt = G0} = S) ->
             S1
     end.
 
-advance_over(#s{complete = C, sim = #sim{end_t = End} = Sim} = S) ->
+advance_over(#s{complete = C, sim = Sim, unready = U} = S) ->
     Next = next_sync(S),
-    case maps:take(Next, C) of
+    %% not past a regroup point whose entities have not all stopped there
+    Held = map_size(U) > 0 andalso Next > lists:min(maps:keys(U)),
+    case (not Held) andalso maps:take(Next, C) of
         {true, C1} ->
-            S0 = case is_frame(Next, Sim) of
-                     true ->
-                         %% frames leave the engine with their time in ms
-                         Ms = ms(Next, S),
-                         Frame = {frame, Ms, ets:select(Sim#sim.records, [{{{Next, '_'}, '$1'}, [], ['$1']}])},
-                         write_ring(Ms, Frame, S),
-                         _ = [P ! {rw_frame, self(), Frame} || P <- S#s.subscribers],
-                         S#s{frames = S#s.frames + 1};
-                     false ->
-                         S
-                 end,
-            S0b = regroup(Next, S0),
-            ets:select_delete(Sim#sim.records, [{{{Next, '_'}, '_'}, [], [true]}]),
-            ets:delete(Sim#sim.counts, Next),
-            S1 = S0b#s{gvt = Next, complete = C1, last_advance = now_ms()},
-            case Next of
-                End -> S1;
-                _ -> advance_over(S1)
+            %% An entity told to stop at a regroup point rolls back to it and
+            %% takes back its commits after it, perhaps after their
+            %% completions were sent: count again.
+            case ets:lookup(Sim#sim.counts, Next) of
+                [{_, N}] when N =:= Sim#sim.n -> pass(Next, S#s{complete = C1});
+                _ -> S#s{complete = C1}
             end;
-        error ->
+        _ ->
             S
     end.
 
-%% At a regroup point X, plan the groups for X + period from the states
-%% committed at X (still in the records table) and the pairs that touched
-%% at the sync point before X, and write who moves then. At the sync point
-%% before a regroup point, remember which pairs touch.
+%% GVT passes Next: write the frame, plan the groups, forget its records.
+pass(Next, #s{sim = #sim{end_t = End} = Sim} = S) ->
+    S0 = case is_frame(Next, Sim) of
+             true ->
+                 %% frames leave the engine with their time in ms
+                 Ms = ms(Next, S),
+                 Frame = {frame, Ms, ets:select(Sim#sim.records, [{{{Next, '_'}, '$1'}, [], ['$1']}])},
+                 write_ring(Ms, Frame, S),
+                 _ = [P ! {rw_frame, self(), Frame} || P <- S#s.subscribers],
+                 S#s{frames = S#s.frames + 1};
+             false ->
+                 S
+         end,
+    S1 = regroup(Next, S0),
+    ets:select_delete(Sim#sim.records, [{{{Next, '_'}, '_'}, [], [true]}]),
+    ets:delete(Sim#sim.counts, Next),
+    S2 = S1#s{gvt = Next, last_advance = now_ms()},
+    case Next of
+        End -> S2;
+        _ -> advance_over(S2)
+    end.
+
+%% At a regroup point X, plan the groups at X + period from the states
+%% committed at X (still in the records table) and the pairs the bodies
+%% said met often lately, and write who moves then. Without a group and
+%% without such a pair nothing can change, and nothing is planned.
 regroup(_X, #s{sim = #sim{period = 0}} = S) -> S;
-regroup(X, #s{sim = #sim{period = P, end_t = End, scene = #scene{frame = F, stride = Stride}, grouping = persistent}} = S)
-  when X rem P =/= 0; X + P >= End ->
-    Next = sync_after(X, F, Stride, End),
-    case Next rem P =:= 0 andalso Next + P < End of
-        true -> S#s{touching = rw_regroup:touching(committed(X, S))};
-        false -> S
-    end;
 regroup(X, #s{sim = #sim{period = P, end_t = End}} = S) when X rem P =/= 0; X + P >= End -> S;
-regroup(X, #s{sim = #sim{period = P, group_max = Max, grouping = Mode, plans = Plans, stats = Stats},
-              leaders = Old, pids = Pids, touching = Before} = S) ->
-    New = rw_regroup:plan(committed(X, S), Old, Max, case Mode of eager -> eager; persistent -> Before end),
-    Moves = rw_regroup:moves(Old, New, Pids),
-    ets:insert(Plans, [{{X + P, I}, Move} || {I, Move} <- maps:to_list(Moves)]),
-    %% plans before the previous point are done with
-    ets:select_delete(Plans, [{{{'$1', '_'}, '_'}, [{'<', '$1', X}], [true]}]),
-    %% counter 13 is regroups: groups that change
-    counters:add(Stats, 13, length([M || {_, #{send := _} = M} <- maps:to_list(Moves)])),
-    S#s{leaders = New, touching = #{}}.
+regroup(X, #s{sim = #sim{period = P, group_max = Max, grouping = Mode, plans = Plans, stats = Stats, met = MetTab},
+              leaders = Old, pids = Pids, grouped = Grouped} = S) ->
+    %% the pairs that met often since the last regroup point but one
+    Met = maps:from_list([{Pair, true} || Pair <- ets:select(MetTab, [{{'$1', '$2'}, [{'>=', '$2', X - P}], ['$1']}])]),
+    ets:select_delete(MetTab, [{{'_', '$1'}, [{'<', '$1', X - P}], [true]}]),
+    case Mode =:= persistent andalso not Grouped andalso map_size(Met) =:= 0 of
+        true ->
+            S;
+        false ->
+            New = rw_regroup:plan(committed(X, S), Old, Max, case Mode of eager -> eager; persistent -> Met end),
+            Moves = rw_regroup:moves(Old, New, Pids),
+            At = X + P,
+            ets:insert(Plans, [{{At, I}, Move} || {I, Move} <- maps:to_list(Moves)]),
+            %% plans before the last regroup point are done with
+            ets:select_delete(Plans, [{{{'$1', '_'}, '_'}, [{'<', '$1', X}], [true]}]),
+            Told = [begin Pid = maps:get(I, Pids), Pid ! {regroup, At}, Pid end
+                    || {I, #{send := _}} <- maps:to_list(Moves)],
+            %% counter 13 is regroups: groups that change
+            counters:add(Stats, 13, length(Told)),
+            Unready = case Told of [] -> S#s.unready; _ -> (S#s.unready)#{At => Told} end,
+            S#s{leaders = New, grouped = lists:any(fun({I, L}) -> I =/= L end, maps:to_list(New)), unready = Unready}
+    end.
 
 %% Every body's committed state at sync point X: {Idx, Radius, P, V}.
 committed(X, #s{sim = #sim{records = Records}, radii = Radii}) ->

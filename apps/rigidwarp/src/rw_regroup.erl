@@ -7,14 +7,13 @@
 %% meet at every substep and exchange a TVHT write, an event and an
 %% acknowledgement per pair and substep. A group is a connected set of
 %% bodies that
-%%   join  - touch (centres closer than 1.05 x the sum of their radii) at
-%%           the regroup point and at the sync point before it (10 ms
-%%           earlier in the paper's scenes), and do not move apart or
-%%           together faster than half the sum of their radii per second
-%%           (0.4 m/s for two spheres of 0.4 m): resting, rolling or
-%%           pressing on each other, not bouncing off (a bounce is over in a
-%%           few substeps; grouping every pair near each other made Bouncing
-%%           500 1.8 times as slow, with 90 times as many regroups);
+%%   meet  - met at many substeps lately (the entities say so in #sim.met:
+%%           rw_body:touch/5) and are closer than 1.25 x the sum of their
+%%           radii: resting, rolling or pressing on each other, or bouncing
+%%           on each other again and again as Cylinders' layers do when they
+%%           land; a bounce in a gas of spheres is over in a few substeps and
+%%           joins nothing (grouping every pair near each other made
+%%           Bouncing 500 1.8 times as slow, with 90 times as many regroups);
 %%   stay  - already share a group and are closer than 1.25 x the sum of
 %%           their radii, however they move (hysteresis: a group does not
 %%           split and re-form at every jostle);
@@ -26,7 +25,7 @@
 %% A group's leader is its lowest idx. Grouping never changes the physics,
 %% only which process computes it.
 -module(rw_regroup).
--export([touching/1, plan/4, moves/3]).
+-export([plan/4, moves/3]).
 -export_type([body/0, leaders/0, move/0, pairs/0]).
 
 %% A body's committed state at the regroup point: idx, radius, position,
@@ -41,21 +40,15 @@
 %% Pairs of bodies {A, B}, A < B.
 -type pairs() :: #{{non_neg_integer(), non_neg_integer()} => true}.
 
--define(TOUCH, 1.05).
--define(JOIN_SPEED, 0.5).            % sums of radii per second
--define(STAY, 1.25).
+-define(NEAR, 1.25).
 -define(EAGER, 3.0).
 
-%% The pairs of Bodies that touch (for the next plan/4).
--spec touching([body()]) -> pairs().
-touching(Bodies) -> maps:from_list([{Pair, true} || {Pair, Dist, Sum} <- close(Bodies, ?TOUCH), Dist < ?TOUCH * Sum]).
-
-%% The groups for the next period, from Bodies, the current groups and the
-%% pairs that touched at the sync point before (eager: tests).
+%% The groups from Bodies, the current groups and the pairs that met at
+%% many substeps lately (eager: tests).
 -spec plan([body()], leaders(), pos_integer(), pairs() | eager) -> leaders().
-plan(Bodies, Old, Max, Before) ->
+plan(Bodies, Old, Max, Met) ->
     ByIdx = maps:from_list([{I, B} || {I, _, _, _} = B <- Bodies]),
-    {Stay, Join} = edges(Bodies, Old, Before),
+    {Stay, Join} = edges(Bodies, Old, Met),
     Uf0 = maps:from_list([{I, {I, 1}} || {I, _, _, _} <- Bodies]),
     Uf1 = lists:foldl(fun({A, B}, U) -> union(A, B, Max, U) end, Uf0, Stay),
     Uf = lists:foldl(fun({_, {A, B}}, U) -> union(A, B, Max, U) end, Uf1, lists:sort(Join)),
@@ -94,25 +87,16 @@ groups(Leaders) ->
 is_group([L | _] = G, Groups) -> maps:get(L, Groups, none) =:= G.
 
 %% Pairs close enough to stay together or to join.
-edges(Bodies, Old, Before) ->
-    Join = case Before of eager -> ?EAGER; _ -> ?TOUCH end,
-    ByIdx = maps:from_list([{I, B} || {I, _, _, _} = B <- Bodies]),
+edges(Bodies, Old, Met) ->
+    Reach = case Met of eager -> ?EAGER; _ -> ?NEAR end,
     lists:foldl(fun({{A, B} = Pair, Dist, Sum}, {S, J}) ->
                         case maps:get(A, Old) =:= maps:get(B, Old) of
-                            true when Dist < ?STAY * Sum -> {[Pair | S], J};
-                            false when Before =:= eager, Dist < Join * Sum -> {S, [{Dist, Pair} | J]};
-                            false when Dist < Join * Sum, is_map_key(Pair, Before) ->
-                                case slow(maps:get(A, ByIdx), maps:get(B, ByIdx), Dist, Sum) of
-                                    true -> {S, [{Dist, Pair} | J]};
-                                    false -> {S, J}
-                                end;
+                            true when Dist < ?NEAR * Sum -> {[Pair | S], J};
+                            false when Met =:= eager -> {S, [{Dist, Pair} | J]};
+                            false when Dist < ?NEAR * Sum, is_map_key(Pair, Met) -> {S, [{Dist, Pair} | J]};
                             _ -> {S, J}
                         end
-                end, {[], []}, close(Bodies, max(?STAY, Join))).
-
-%% Two touching bodies that neither approach nor leave each other fast.
-slow({_, _, PA, VA}, {_, _, PB, VB}, Dist, Sum) ->
-    Dist > 0.0 andalso abs(rw_vec:dot(rw_vec:sub(VB, VA), rw_vec:sub(PB, PA))) / Dist < ?JOIN_SPEED * Sum.
+                end, {[], []}, close(Bodies, Reach)).
 
 %% Pairs {{A, B}, Distance, SumOfRadii} closer than F x the sum of their
 %% radii: bodies sorted by x, each tested against those after it that are

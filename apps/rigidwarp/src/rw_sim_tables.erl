@@ -6,7 +6,7 @@
 -export([init/1, handle_call/3, handle_cast/2]).
 
 -type tables() :: #{records := ets:tid(), counts := ets:tid(), ring := ets:tid(), plans := ets:tid(),
-                    owners := ets:tid()}.
+                    owners := ets:tid(), met := ets:tid()}.
 -export_type([tables/0]).
 
 -spec start_link() -> {ok, pid()}.
@@ -21,7 +21,8 @@ init([]) ->
            counts => ets:new(rw_counts, [set, public, {write_concurrency, true}]),
            ring => ets:new(rw_frames, [set, public, {read_concurrency, true}]),
            plans => ets:new(rw_plans, [set, public, {read_concurrency, true}]),
-           owners => ets:new(rw_owners, [set, public, {read_concurrency, true}, {write_concurrency, true}])}}.
+           owners => ets:new(rw_owners, [set, public, {read_concurrency, true}, {write_concurrency, true}]),
+           met => ets:new(rw_met, [set, public, {write_concurrency, true}])}}.
 
 -spec handle_call(tables, gen_server:from(), tables()) -> {reply, tables(), tables()}.
 handle_call(tables, _From, Tabs) -> {reply, Tabs, Tabs}.

@@ -31,11 +31,10 @@ default_buckets() -> 64.
 -spec default_group_max() -> pos_integer().
 default_group_max() -> 64.
 
-%% Bodies regroup at multiples of the stride at least 64 substeps apart:
-%% the GVT process plans each regroup point a period ahead, from the states
-%% at the one before, and every body must have heard of it before it can
-%% step past (the period is at least the stride, so a body never can).
-period(#scene{stride = Stride, substep = Dt}) -> Stride * max(1, (64 * Dt + Stride - 1) div Stride).
+%% Bodies may regroup every 16 substeps, planned when GVT reaches the
+%% regroup point before (rw_gvt): a new persistent contact is stepped as one
+%% group 16-32 substeps after its bodies have met often enough to say so.
+period(#scene{substep = Dt}) -> 16 * Dt.
 
 %% Start a simulation; it runs on its own until the scene's end.
 -spec start(#scene{}, options()) -> {ok, handle()} | {error, term()}.
@@ -48,23 +47,23 @@ start(#scene{spheres = Spheres, initial = Initial, duration = End} = Scene, Opts
     case supervisor:start_child(rw_sims_sup, [Scene, NBuckets]) of
         {ok, Sup} ->
             #{tables := TablesPid, gvt := Gvt, buckets := Buckets, bodies := BodySup} = rw_sim_sup:children(Sup),
-            #{records := Records, counts := Counts, ring := Ring, plans := Plans, owners := Owners} =
+            #{records := Records, counts := Counts, ring := Ring, plans := Plans, owners := Owners, met := Met} =
                 rw_sim_tables:tables(TablesPid),
-            Groups = maps:get(groups, Opts, true),
+            Period = case {maps:get(groups, Opts, true), maps:find(regroup_every, Opts)} of
+                         {false, _} -> 0;
+                         {true, {ok, Every}} -> Every * Scene#scene.stride;
+                         {true, error} -> period(Scene)
+                     end,
             Sim = #sim{scene = Scene, n = length(Spheres), end_t = End, buckets = Buckets, gvt = Gvt,
                        records = Records, counts = Counts, ring = Ring,
                        stats = counters:new(length(?STAT_NAMES), [write_concurrency]),
                        profile = maps:get(profile, Opts, false),
                        lvts = atomics:new(lvt_slot(lists:max([0 | [I || #sphere{idx = I} <- Spheres]])), [{signed, false}]),
                        gvt_now = new_gvt(),
-                       period = case {Groups, maps:find(regroup_every, Opts)} of
-                                    {false, _} -> 0;
-                                    {true, {ok, Every}} -> Every * Scene#scene.stride;
-                                    {true, error} -> period(Scene)
-                                end,
+                       period = Period,
                        group_max = maps:get(group_max, Opts, default_group_max()),
                        grouping = maps:get(grouping, Opts, persistent),
-                       plans = Plans, owners = Owners},
+                       plans = Plans, owners = Owners, met = Met},
             %% every body holds the simulation record: not the whole scene's
             %% bodies, which it never reads (a copy per body fills the heaps)
             BodySim = Sim#sim{scene = Scene#scene{spheres = [], initial = []}},
