@@ -25,6 +25,7 @@
 -include("rw_physics.hrl").
 -export([new/3, size/1, posts/3, step/3, post/3]).
 -export_type([island/0, external/0]).
+-include("rw_vec_inline.hrl").
 
 %% The effect of a contact with a body outside the island, for the member
 %% whose idx is given, under its canonical key.
@@ -75,16 +76,29 @@ posts(#island{model = M, spheres = Spheres, pos = Pos} = I0, States, External) -
     Disps = displacements(M, States),
     {Pairs, I1} = neighbours(I0, States, Disps),
     #island{near = Near} = I = fixtures_near(I1, States, Disps),
-    Fixed = list_to_tuple([rw_dynamics:fixture_effects(M, element(K, Spheres), element(K, States), element(K, Near))
-                           || K <- lists:seq(1, N)]),
-    Seen = list_to_tuple([rw_dynamics:after_fixtures(element(K, States), element(K, Fixed))
-                          || K <- lists:seq(1, N)]),
+    {Fixed, Seen} = fixed_and_seen(N, M, Spheres, States, Near, [], []),
     Outside = [{maps:get(Idx, Pos), Keyed} || {Idx, Keyed} <- External],
     Found = pair_effects(Pairs, M, Spheres, States, Seen, Disps, Outside),
-    ByMember = by_member(1, N, lists:sort(Found), []),
-    Posts = list_to_tuple([respond(element(K, States), element(K, Fixed), Mine)
-                           || {K, Mine} <- lists:zip(lists:seq(1, N), ByMember)]),
-    {Posts, I}.
+    %% (sorted descending, each member's effects are gathered in ascending
+    %% key order without a reverse)
+    {list_to_tuple(each_post(N, lists:reverse(lists:sort(Found)), States, Fixed, [])), I}.
+
+%% Every member's fixture effects and the state its pair contacts see.
+fixed_and_seen(0, _M, _Spheres, _States, _Near, Fixed, Seen) -> {list_to_tuple(Fixed), list_to_tuple(Seen)};
+fixed_and_seen(K, M, Spheres, States, Near, Fixed, Seen) ->
+    St = element(K, States),
+    F = rw_dynamics:fixture_effects(M, element(K, Spheres), St, element(K, Near)),
+    fixed_and_seen(K - 1, M, Spheres, States, Near, [F | Fixed], [rw_dynamics:after_fixtures(St, F) | Seen]).
+
+%% The posts of members K..1, from the pair and outside effects sorted
+%% descending by {Position, Key}.
+each_post(0, _Found, _States, _Fixed, Acc) -> Acc;
+each_post(K, Found, States, Fixed, Acc) ->
+    {Mine, Rest} = take(K, Found, []),
+    each_post(K - 1, Rest, States, Fixed, [respond(element(K, States), element(K, Fixed), Mine) | Acc]).
+
+take(K, [{K, Keyed} | Rest], Acc) -> take(K, Rest, [Keyed | Acc]);
+take(_K, Rest, Acc) -> {Acc, Rest}.
 
 %% The posts at this substep, and the members' next pre-response states.
 -spec step(island(), tuple(), [external()]) -> {tuple(), tuple(), island()}.
@@ -93,11 +107,12 @@ step(#island{model = M, spheres = {_}} = I0, {St}, External) ->
     {{Post}, {rw_integrate:advance(M, St, V, W, U)}, I};
 step(#island{model = M} = I0, States, External) ->
     {Posts, I} = posts(I0, States, External),
-    Next = list_to_tuple([begin
-                              {V, W, U} = element(K, Posts),
-                              rw_integrate:advance(M, element(K, States), V, W, U)
-                          end || K <- lists:seq(1, tuple_size(States))]),
-    {Posts, Next, I}.
+    {Posts, advance_all(tuple_size(States), M, States, Posts, []), I}.
+
+advance_all(0, _M, _States, _Posts, Acc) -> list_to_tuple(Acc);
+advance_all(K, M, States, Posts, Acc) ->
+    {V, W, U} = element(K, Posts),
+    advance_all(K - 1, M, States, Posts, [rw_integrate:advance(M, element(K, States), V, W, U) | Acc]).
 
 %% The post-response velocities of the one member of an island of one (the
 %% most common entity, and the hot path of free flight): its fixtures and
@@ -141,16 +156,6 @@ pair_effects([{A, B} | Rest], M, Spheres, States, Seen, Disps, Acc) ->
             pair_effects(Rest, M, Spheres, States, Seen, Disps, [{A, {{IB, 0}, EA}}, {B, {{IA, 0}, EB}} | Acc])
     end.
 
-%% The sorted {Position, {Key, Effect}} list as one sorted [{Key, Effect}]
-%% list per position K..N.
-by_member(K, N, _Found, Acc) when K > N -> lists:reverse(Acc);
-by_member(K, N, Found, Acc) ->
-    {Mine, Rest} = take(K, Found, []),
-    by_member(K + 1, N, Rest, [Mine | Acc]).
-
-take(K, [{K, Keyed} | Rest], Acc) -> take(K, Rest, [Keyed | Acc]);
-take(_K, Rest, Acc) -> {lists:reverse(Acc), Rest}.
-
 %% With CCD, each member's free displacement over the substep.
 displacements(#model{ccd = false}, _States) -> undefined;
 displacements(M, States) -> list_to_tuple([rw_integrate:free_displacement(M, St) || St <- tuple_to_list(States)]).
@@ -193,10 +198,10 @@ may_touch(#fixture{box = {X0, Y0, Z0, X1, Y1, Z1}}, {X, Y, Z}, Reach) ->
 fixtures_within(0, _States, _Anchors, _Disps, _Limit) -> true;
 fixtures_within(K, States, Anchors, Disps, Limit) ->
     #st{p = P} = element(K, States),
-    Moved = rw_vec:len(rw_vec:sub(P, element(K, Anchors))),
+    Moved = vlen(vsub(P, element(K, Anchors))),
     Swept = case Disps of
                 undefined -> 0.0;
-                _ -> rw_vec:len(element(K, Disps))
+                _ -> vlen(element(K, Disps))
             end,
     case Moved + Swept =< Limit of
         true -> fixtures_within(K - 1, States, Anchors, Disps, Limit);
@@ -231,16 +236,16 @@ fresh(I0, States, Disps) ->
 %% member's.
 valid(States, Anchors, Disps, Limit) ->
     #st{p = P1} = element(1, States),
-    Drift = rw_vec:sub(P1, element(1, Anchors)),
+    Drift = vsub(P1, element(1, Anchors)),
     within(tuple_size(States), States, Anchors, Drift, Disps, Limit).
 
 within(0, _States, _Anchors, _Drift, _Disps, _Limit) -> true;
 within(K, States, Anchors, Drift, Disps, Limit) ->
     #st{p = P} = element(K, States),
-    Moved = rw_vec:len(rw_vec:sub(rw_vec:sub(P, element(K, Anchors)), Drift)),
+    Moved = vlen(vsub(vsub(P, element(K, Anchors)), Drift)),
     Swept = case Disps of
                 undefined -> 0.0;
-                _ -> rw_vec:len(rw_vec:sub(element(K, Disps), element(1, Disps)))
+                _ -> vlen(vsub(element(K, Disps), element(1, Disps)))
             end,
     case Moved + Swept =< Limit of
         true -> within(K - 1, States, Anchors, Drift, Disps, Limit);
@@ -264,12 +269,21 @@ sweep([], _Spheres, _Anchors, _Skin, _RMax, Acc) -> Acc;
 sweep([{X, A} | Rest], Spheres, Anchors, Skin, RMax, Acc) ->
     #sphere{radius = RA} = element(A, Spheres),
     Reach = RA + RMax + Skin,
-    PA = element(A, Anchors),
-    Close = [{min(A, B), max(A, B)}
-             || {_, B} <- lists:takewhile(fun({XB, _}) -> XB - X < Reach end, Rest),
-                begin
-                    #sphere{radius = RB} = element(B, Spheres),
-                    S = RA + RB + Skin,
-                    rw_vec:len2(rw_vec:sub(element(B, Anchors), PA)) < S * S
-                end],
-    sweep(Rest, Spheres, Anchors, Skin, RMax, Close ++ Acc).
+    sweep(Rest, Spheres, Anchors, Skin, RMax, close(Rest, X + Reach, Reach, A, RA, element(A, Anchors), Spheres, Anchors, Skin, Acc)).
+
+%% The members after A in x order that are closer along x than Reach, and
+%% closer than the sum of radii plus the skin (most are rejected by their
+%% distance along y or z first).
+close([{XB, B} | Rest], XMax, Reach, A, RA, {_, YA, ZA} = PA, Spheres, Anchors, Skin, Acc) when XB < XMax ->
+    {_, YB, ZB} = PB = element(B, Anchors),
+    case abs(YB - YA) >= Reach orelse abs(ZB - ZA) >= Reach of
+        true -> close(Rest, XMax, Reach, A, RA, PA, Spheres, Anchors, Skin, Acc);
+        false ->
+            #sphere{radius = RB} = element(B, Spheres),
+            S = RA + RB + Skin,
+            case vlen2(vsub(PB, PA)) < S * S of
+                true -> close(Rest, XMax, Reach, A, RA, PA, Spheres, Anchors, Skin, [{min(A, B), max(A, B)} | Acc]);
+                false -> close(Rest, XMax, Reach, A, RA, PA, Spheres, Anchors, Skin, Acc)
+            end
+    end;
+close(_, _XMax, _Reach, _A, _RA, _PA, _Spheres, _Anchors, _Skin, Acc) -> Acc.

@@ -11,12 +11,12 @@
 identity() -> {{0.0, 0.0, 0.0}, 1.0}.
 
 -spec mul(quat(), quat()) -> quat().
-mul({V1, W1}, {V2, W2}) ->
+mul({V1, W1}, {V2, W2}) when is_float(W1), is_float(W2) ->
     V = vadd(vadd(vscale(V2, W1), vscale(V1, W2)), vcross(V1, V2)),
     {V, W1 * W2 - vdot(V1, V2)}.
 
 -spec norm(quat()) -> quat().
-norm({V, W} = Q) ->
+norm({V, W} = Q) when is_float(W) ->
     L = math:sqrt(vlen2(V) + W * W),
     case L > 0.0 of
         true -> {vscale(V, 1.0 / L), W / L};
