@@ -19,9 +19,11 @@
 %% Groups change only at regroup points S (multiples of #sim.period) that
 %% GVT has reached: the GVT process plans them a period ahead and tells
 %% every entity whose group changes ({regroup, S}); such an entity rolls
-%% back to S if it is past it (any time at or after GVT is a legal rollback
-%% target), says so, and stops at S, and GVT does not pass S before all of
-%% them have said so. Once GVT is S (no rollback can reach S or earlier,
+%% back to S if it is past it (GVT is below S, so S is a legal rollback
+%% target), says so, and stops at S, and GVT does not reach S before all
+%% of them have said so. A rollback to S takes back the commit at S too,
+%% as any rollback does, so GVT reaches S only once its antievents have
+%% been acknowledged. Once GVT is S (no rollback can reach S or earlier,
 %% and no message about a state at S or later is on its way) the old
 %% leaders send each member's state and post-response velocities at S to
 %% its new leader. No message ever has to follow a body to its new
@@ -281,6 +283,8 @@ member(info, {watch, Pid, _}, #d{idx = Idx, lvt = Lvt}) ->
     keep_state_and_data;
 member(info, Msg, _D) when element(1, Msg) =:= gvt; element(1, Msg) =:= reached ->
     keep_state_and_data;
+member(info, Msg, D) when element(1, Msg) =:= antievent; element(1, Msg) =:= ack ->
+    stray(Msg, D);
 member(Type, Msg, D) ->
     unexpected(member, Type, Msg, D).
 
@@ -300,12 +304,26 @@ gather(info, {regroup, S}, #d{gathering = {Now, _, _}} = D) when S > Now ->
     {keep_state, on_regroup(S, D)};
 gather(info, Msg, _D) when element(1, Msg) =:= gvt; element(1, Msg) =:= reached ->
     keep_state_and_data;
+gather(info, Msg, D) when element(1, Msg) =:= antievent; element(1, Msg) =:= ack ->
+    stray(Msg, D);
 gather(Type, Msg, D) ->
     unexpected(gather, Type, Msg, D).
 
-%% Nothing but the messages above can reach a member or a gathering leader
-%% (no state of its bodies after the regroup point exists anywhere yet): a
-%% protocol error, which must not pass unseen.
+%% An antievent or acknowledgement about a state after the regroup point
+%% that this process deleted before it handed over: the other entity
+%% deleted its side first (its antievent crossed our rollback) or our
+%% rollback stopped waiting for the acknowledgement. Nothing of it is here
+%% any more; an antievent is acknowledged, as an entity would.
+stray({antievent, Cid, _T, From}, D) ->
+    send(From, {ack, anti, Cid}, D),
+    keep_state_and_data;
+stray({ack, _, _}, _D) ->
+    keep_state_and_data.
+
+%% No event can reach a member or a gathering leader (no state of its
+%% bodies after the regroup point exists anywhere yet, and an event about
+%% one it deleted arrives before the acknowledgement of its antievent,
+%% which it awaited): a protocol error, which must not pass unseen.
 -spec unexpected(atom(), gen_statem:event_type(), term(), #d{}) -> no_return().
 unexpected(Phase, Type, Msg, #d{idx = Idx}) ->
     logger:error("rw_body ~p: ~p ~p while in ~p", [Idx, Type, Msg, Phase]),
@@ -352,11 +370,10 @@ regroup(_Last, #d{stop_at = [S | _]} = D) -> {S, true, D}.
 
 %% The GVT process says this entity's group changes at S: stop there,
 %% rolling back to S first if it is already past (its states after S are
-%% no use to the new group), and say so. The state at S and its commit
-%% stay: no contact at S changes.
+%% no use to the new group), and say so.
 on_regroup(S, #d{lvt = Lvt, sim = #sim{gvt = Gvt}} = D0) ->
     D = case Lvt > S of
-            true -> roll_back(S, keep, D0);
+            true -> roll_back(S, D0);
             false -> D0
         end,
     Gvt ! {regroup_ack, S, self()},
@@ -749,7 +766,7 @@ on_event(Cid, T, FromIdx, From, ToIdx, Effect, #d{ghosts = Ghosts, lvt = Lvt, co
                      touched = touch(ToIdx, FromIdx, T, D#d.touched, D)},
             D2 = case T < Lvt of
                      true -> counters:add(D#d.sim#sim.stats, ?ST_PRIMARY, 1),
-                             roll_back(T, withdraw, D1);
+                             roll_back(T, D1);
                      false -> withdraw(T, D1)
                  end,
             send(From, {ack, event, Cid}, D2),
@@ -764,7 +781,7 @@ on_antievent(Cid, T, From, #d{contacts = Contacts, lvt = Lvt} = D) ->
                           pend_ev = maps:remove(Cid, D#d.pend_ev)},
                  case T < Lvt of
                      true -> counters:add(D#d.sim#sim.stats, ?ST_SECONDARY, 1),
-                             roll_back(T, withdraw, D1);
+                             roll_back(T, D1);
                      false -> withdraw(T, D1)
                  end;
              false ->
@@ -775,14 +792,11 @@ on_antievent(Cid, T, From, #d{contacts = Contacts, lvt = Lvt} = D) ->
     D2.
 
 %% Go back to R: delete the states after R from the TVHT, send antievents
-%% for the contacts they had, and forget commits from R on (withdraw: a new
-%% contact at R changes the post-response velocities there) or after R
-%% (keep: nothing at R changes).
-roll_back(R, withdraw, #d{lvt = Lvt} = D) when R >= Lvt -> withdraw(R, D);
-roll_back(R, keep, #d{lvt = Lvt} = D) when R >= Lvt -> D;
-roll_back(R, Commit, D) -> ?TIMED(D, ?ST_RED_ROLLBACK, undo(R, Commit, D)).
+%% for the contacts they had, forget commits from R on.
+roll_back(R, #d{lvt = Lvt} = D) when R >= Lvt -> withdraw(R, D);
+roll_back(R, D) -> ?TIMED(D, ?ST_RED_ROLLBACK, undo(R, D)).
 
-undo(R, Commit, #d{idxs = Idxs, lvt = Lvt, dt = Dt, contacts = Contacts, sim = Sim, written = Written} = D) ->
+undo(R, #d{idxs = Idxs, lvt = Lvt, dt = Dt, contacts = Contacts, sim = Sim, written = Written} = D) ->
     %% every bucket holding a state after R, with the cells it holds them in
     Where = lists:foldl(fun({B, Pid, Cells}, Acc) ->
                                 maps:update_with({B, Pid}, fun(Cs) -> Cells ++ Cs end, Cells, Acc)
@@ -815,8 +829,7 @@ undo(R, Commit, #d{idxs = Idxs, lvt = Lvt, dt = Dt, contacts = Contacts, sim = S
           end, {D#d.pend_anti, D#d.ghosts}, Lost),
     counters:add(Sim#sim.stats, ?ST_ANTIEVENTS, map_size(PendAnti) - map_size(D#d.pend_anti)),
     Keep = fun(T, _) -> T =< R end,
-    From = case Commit of withdraw -> R; keep -> R + 1 end,
-    withdraw(From, publish_lvt(D#d{lvt = R, contacts = maps:filter(Keep, Contacts),
+    withdraw(R, publish_lvt(D#d{lvt = R, contacts = maps:filter(Keep, Contacts),
                     pend_ev = #{}, pend_anti = PendAnti, ghosts = Ghosts, written = Written1,
                     window = max(1, D#d.window div 2)})).
 

@@ -12,7 +12,7 @@
 %% Contact groups: at every regroup point X (a multiple of #sim.period)
 %% it plans the groups at S = X + period from the committed states at X
 %% (rw_regroup), writes who moves then into the plans table, and tells
-%% every entity whose group changes ({regroup, S}); GVT does not pass S
+%% every entity whose group changes ({regroup, S}); GVT does not reach S
 %% before each of them has answered (rolled back to S if it was past it,
 %% and stopped there).
 %%
@@ -191,12 +191,12 @@ advance(#s{gvt = G0} = S) ->
 
 advance_over(#s{complete = C, sim = Sim, unready = U} = S) ->
     Next = next_sync(S),
-    %% not past a regroup point whose entities have not all stopped there
-    Held = map_size(U) > 0 andalso Next > lists:min(maps:keys(U)),
+    %% not up to a regroup point whose entities have not all stopped there
+    Held = map_size(U) > 0 andalso Next >= lists:min(maps:keys(U)),
     case (not Held) andalso maps:take(Next, C) of
         {true, C1} ->
             %% An entity told to stop at a regroup point rolls back to it and
-            %% takes back its commits after it, perhaps after their
+            %% takes back its commits from it on, perhaps after their
             %% completions were sent: count again.
             case ets:lookup(Sim#sim.counts, Next) of
                 [{_, N}] when N =:= Sim#sim.n -> pass(Next, S#s{complete = C1});
