@@ -79,7 +79,7 @@ start_link(Model, Dt, _Index) -> gen_server:start_link(?MODULE, {Model, Dt}, [])
 %% must follow with commit_unlock/4.
 -spec lock_probe(pid(), [rw_hash:cell()], write(), [span()]) -> {non_neg_integer(), [hit()]} | none.
 lock_probe(Bucket, Cells, {Owner, _, _, _} = Write, Spans) ->
-    gen_server:call(Bucket, {lock, Owner, Cells, {probe, Write, Spans}}, infinity).
+    locked_call(Bucket, {lock, Owner, Cells, {probe, Write, Spans}}).
 
 %% Store the probed states up to and including UpTo, record the contacts
 %% at UpTo under the ids the writer gave them (by {member, partner} idx),
@@ -95,7 +95,7 @@ commit_unlock(Bucket, Owner, UpTo, Ids) ->
 -spec probe_commit(pid(), [rw_hash:cell()], write(), [span()], non_neg_integer()) ->
           {UpTo :: non_neg_integer(), [hit()], ids()}.
 probe_commit(Bucket, Cells, {Owner, _, _, _} = Write, Spans, Last) ->
-    gen_server:call(Bucket, {lock, Owner, Cells, {probe_commit, Write, Spans, Last}}, infinity).
+    locked_call(Bucket, {lock, Owner, Cells, {probe_commit, Write, Spans, Last}}).
 
 %% The ids of the contacts at T between the writer's members and other
 %% bodies, by {member idx, partner idx}: {T, lower idx, higher idx, unique}.
@@ -111,7 +111,19 @@ contact_ids(T, Pairs) ->
 -spec lock_delete(pid(), pid(), [rw_hash:cell()], [non_neg_integer()], non_neg_integer()) ->
           [{cid(), pid(), pid()}].
 lock_delete(Bucket, Owner, Cells, Idxs, R) ->
-    gen_server:call(Bucket, {lock, Owner, Cells, {delete, Idxs, R, Cells}}, infinity).
+    locked_call(Bucket, {lock, Owner, Cells, {delete, Idxs, R, Cells}}).
+
+%% A request and its answer, as gen_server:call/3 without the monitor that
+%% call sets up and takes down each time (a tenth of the cost of a write to
+%% the TVHT): a bucket that died has taken its simulation down with it, and
+%% the caller with it (rw_sim_sup). The answer is matched by a fresh
+%% reference, which the runtime finds without scanning older messages.
+locked_call(Bucket, Req) ->
+    Ref = make_ref(),
+    Bucket ! {'$rw_call', {self(), Ref}, Req},
+    receive {Ref, Reply} -> Reply end.
+
+reply({Pid, Ref}, Reply) -> Pid ! {Ref, Reply}, ok.
 
 -spec unlock(pid(), pid()) -> ok.
 unlock(Bucket, Owner) -> gen_server:cast(Bucket, {unlock, Owner}).
@@ -140,6 +152,7 @@ timed(Stats, Fun) ->
     Result.
 
 call({lock, Owner, Cells, Op}, From, S) ->
+    %% (From is the caller and its reference, from locked_call/2)
     case free(Cells, Owner, S#state.locks) of
         true ->
             {Reply, S1} = locked_op(Owner, Op, take(Cells, Owner, S)),
@@ -183,6 +196,11 @@ cast({gvt, Gvt}, #state{cells = Cells, by_body = By, contacts = C, dt = Dt} = S)
     {noreply, S#state{cells = Cells1, by_body = By1, contacts = C1, gc_at = Gvt + 32 * Dt}}.
 
 -spec handle_info(term(), #state{}) -> {noreply, #state{}}.
+handle_info({'$rw_call', From, Req}, S) ->
+    case handle_call(Req, From, S) of
+        {reply, Reply, S1} -> reply(From, Reply), {noreply, S1};
+        {noreply, _} = NoReply -> NoReply
+    end;
 handle_info(Msg, S) ->
     logger:warning("rw_bucket ~p: unexpected message ~p", [self(), Msg]),
     {noreply, S}.
@@ -216,7 +234,7 @@ grant([{From, Owner, Cells, Op} = W | Rest], Kept, S) ->
     case free(Cells, Owner, S#state.locks) of
         true ->
             {Reply, S1} = locked_op(Owner, Op, take(Cells, Owner, S)),
-            gen_server:reply(From, Reply),
+            reply(From, Reply),
             grant(Rest, Kept, S1);
         false ->
             grant(Rest, [W | Kept], S)

@@ -48,7 +48,9 @@
 -spec plan([body()], leaders(), pos_integer(), pairs() | eager) -> leaders().
 plan(Bodies, Old, Max, Met) ->
     ByIdx = maps:from_list([{I, B} || {I, _, _, _} = B <- Bodies]),
-    {Stay, Join} = edges(Bodies, Old, Met),
+    %% (a body alone that met nobody stays alone: only the others can have
+    %% an edge)
+    {Stay, Join} = edges(candidates(Bodies, Old, Met), Old, Met),
     Uf0 = maps:from_list([{I, {I, 1}} || {I, _, _, _} <- Bodies]),
     Uf1 = lists:foldl(fun({A, B}, U) -> union(A, B, Max, U) end, Uf0, Stay),
     Uf = lists:foldl(fun({_, {A, B}}, U) -> union(A, B, Max, U) end, Uf1, lists:sort(Join)),
@@ -77,6 +79,14 @@ moves(Old, New, Pids) ->
                 #{}, Sends ++ Gathers).
 
 %%% Internals
+
+candidates(Bodies, _Old, eager) -> Bodies;
+candidates(Bodies, Old, Met) ->
+    InGroup = maps:fold(fun(I, L, Acc) when I =/= L -> Acc#{I => true, L => true};
+                           (_, _, Acc) -> Acc
+                        end, #{}, Old),
+    Seen = maps:fold(fun({A, B}, _, Acc) -> Acc#{A => true, B => true} end, InGroup, Met),
+    [B || {I, _, _, _} = B <- Bodies, is_map_key(I, Seen)].
 
 %% Leader => sorted members.
 groups(Leaders) ->

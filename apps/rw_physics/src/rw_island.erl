@@ -133,7 +133,16 @@ alone(M, S, St, Fixtures, External) ->
 respond(St, [], []) -> rw_dynamics:respond(St, []);
 respond(St, [{_, E}], []) -> rw_dynamics:respond(St, [E]);
 respond(St, [], [{_, E}]) -> rw_dynamics:respond(St, [E]);
-respond(St, Fixed, Others) -> rw_dynamics:respond(St, [E || {_, E} <- lists:merge(Fixed, Others)]).
+respond(St, Fixed, Others) -> rw_dynamics:respond(St, merge(Fixed, Others)).
+
+%% The effects of two lists sorted by (unique) key, in key order.
+merge([{KA, EA} | RA] = A, [{KB, EB} | RB] = B) ->
+    case KA < KB of
+        true -> [EA | merge(RA, B)];
+        false -> [EB | merge(A, RB)]
+    end;
+merge([], B) -> [E || {_, E} <- B];
+merge(A, []) -> [E || {_, E} <- A].
 
 %%% Contacts among members
 
