@@ -7,11 +7,12 @@
 -module(rw_bench_SUITE).
 -include_lib("common_test/include/ct.hrl").
 -export([all/0, suite/0, init_per_suite/1, end_per_suite/1]).
--export([fig7_speedup/1, fig8_breakdown/1, fig9_density/1, fig10_stride/1, features/1, contact_vs_isolated/1]).
+-export([fig7_speedup/1, fig8_breakdown/1, fig9_density/1, fig10_stride/1, features/1, contact_vs_isolated/1,
+         contact_groups/1]).
 
 suite() -> [{timetrap, {hours, 3}}].
 
-all() -> [fig7_speedup, fig8_breakdown, fig9_density, fig10_stride, features, contact_vs_isolated].
+all() -> [fig7_speedup, fig8_breakdown, fig9_density, fig10_stride, features, contact_vs_isolated, contact_groups].
 
 init_per_suite(Config) ->
     {ok, _} = application:ensure_all_started(rigidwarp),
@@ -150,6 +151,26 @@ contact_vs_isolated(Config) ->
                               "writes_per_substep", "substeps_per_write", "events_per_substep", "efficiency",
                               "wall_ms"], Rows).
 
+%%% Contact groups (beyond the paper): the paper's scenes with bodies in
+%%% persistent contact stepped as one entity (the default) and with one
+%%% entity per body, as in the paper (groups => false), on all cores:
+%%% wall time, the VM's reductions and what the protocol did (TVHT writes,
+%%% events, rollbacks, regroups), per repeat.
+contact_groups(Config) ->
+    Cores = erlang:system_info(schedulers),
+    Rows = lists:append(
+             [begin
+                  Scene = load(Name, Config),
+                  [begin
+                       Runs = [work(Scene, Cores, Opts) || _ <- lists:seq(1, ?config(repeats, Config))],
+                       {_, _, Stats} = hd(Runs),
+                       [Name, Mode, median([R || {R, _, _} <- Runs]) | stats([W || {_, W, _} <- Runs])] ++
+                           [maps:get(K, Stats) || K <- [steps, events, rollbacks, regroups, efficiency]]
+                   end || {Mode, Opts} <- [{"groups", #{}}, {"one_per_body", #{groups => false}}]]
+              end || Name <- ["cylinders_200", "cylinders_500", "bouncing_500_250", "parallel_500"]]),
+    write_csv("groups.csv", ["scene", "mode", "reductions", "wall_ms", "wall_min", "wall_max", "writes", "events",
+                             "rollbacks", "regroups", "efficiency"], Rows).
+
 %%% Helpers
 
 %% The scene file with its "model" object extended by Model.
@@ -163,11 +184,13 @@ load_with_model(Name, Model, Config) ->
 
 %% Reductions of the whole VM, wall time (ms) and the summary of one Time
 %% Warp run on S schedulers.
-work(Scene, S) ->
+work(Scene, S) -> work(Scene, S, #{}).
+
+work(Scene, S, Opts) ->
     with_schedulers(S, fun() ->
                                {R0, _} = erlang:statistics(exact_reductions),
                                T0 = erlang:monotonic_time(microsecond),
-                               {ok, Stats} = rw_timewarp:run(Scene, #{}),
+                               {ok, Stats} = rw_timewarp:run(Scene, Opts),
                                Wall = (erlang:monotonic_time(microsecond) - T0) / 1000,
                                {R1, _} = erlang:statistics(exact_reductions),
                                {R1 - R0, Wall, Stats}

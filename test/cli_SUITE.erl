@@ -6,12 +6,14 @@
 -export([all/0, suite/0]).
 -export([bench_machine/1]).
 -export([help/1, validate_every_scenario/1, summary_is_last_line/1, frames_file/1,
-         bad_flags_exit_2/1, integrator_and_ccd_flags/1, bad_scene_exit_2/1, scenes_lists_bundled/1, bad_input_corpus/1,
+         bad_flags_exit_2/1, integrator_and_ccd_flags/1, groups_flags/1, bad_scene_exit_2/1, scenes_lists_bundled/1,
+         bad_input_corpus/1,
          generated_bad_inputs/1, progress_line/1, snapshot_png/1, shell_api_rejects_bad_arguments/1]).
 
 suite() -> [{timetrap, {minutes, 5}}].
 
-all() -> [help, validate_every_scenario, summary_is_last_line, frames_file, integrator_and_ccd_flags, bad_flags_exit_2,
+all() -> [help, validate_every_scenario, summary_is_last_line, frames_file, integrator_and_ccd_flags, groups_flags,
+          bad_flags_exit_2,
           bad_scene_exit_2, scenes_lists_bundled, bad_input_corpus, generated_bad_inputs, progress_line,
           snapshot_png, shell_api_rejects_bad_arguments, bench_machine].
 
@@ -92,6 +94,25 @@ integrator_and_ccd_flags(Config) ->
     ?assertEqual(Verlet, Frames("verlet-ref.jsonl", ["--integrator", "verlet", "--ccd", "on", "--engine", "reference"])),
     ?assertNotEqual(Default, Verlet).
 
+%% --groups and --group-max change which processes compute the bodies, never
+%% the frames: Cylinders 200 lands on its posts at about 600 ms, and its
+%% bodies are grouped soon after.
+groups_flags(Config) ->
+    Scene = rw_test_lib:scenario("cylinders_200.json"),
+    Run = fun(Name, Flags) ->
+                  Out = filename:join(?config(priv_dir, Config), Name),
+                  {0, Stdout, _} = rw_test_lib:run_escript(["run", Scene, "--until", "800", "--quiet", "--frames", Out
+                                                           | Flags]),
+                  {ok, Bin} = file:read_file(Out),
+                  {Bin, last_json_line(Stdout)}
+          end,
+    {Default, #{<<"regroups">> := Regroups}} = Run("default.jsonl", []),
+    {Alone, #{<<"regroups">> := 0}} = Run("alone.jsonl", ["--groups", "off"]),
+    {Pairs, #{<<"regroups">> := PairRegroups}} = Run("pairs.jsonl", ["--groups", "on", "--group-max", "2"]),
+    ?assert(Regroups > 0 andalso PairRegroups > 0),
+    ?assertEqual(Default, Alone),
+    ?assertEqual(Default, Pairs).
+
 bad_flags_exit_2(_Config) ->
     Scene = rw_test_lib:scenario("head_on_elastic.json"),
     Cases = [{["run", Scene, "--bogus"], "unknown flag --bogus"},
@@ -101,6 +122,8 @@ bad_flags_exit_2(_Config) ->
              {["run", Scene, "--integrator", "rk4"], "--integrator must be one of symplectic_euler, verlet, explicit_euler"},
              {["run", Scene, "--ccd", "yes"], "--ccd must be on or off, got yes"},
              {["run", Scene, "--ccd"], "--ccd needs a value"},
+             {["run", Scene, "--groups", "sometimes"], "--groups must be on or off, got sometimes"},
+             {["run", Scene, "--group-max", "0"], "--group-max must be a positive integer, got 0"},
              {["run", Scene, "--schedulers", "999"], "--schedulers must be at most"},
              {["run", Scene, "--until"], "--until needs a value"},
              {["run"], "run needs a scene file"},
@@ -256,6 +279,8 @@ shell_api_rejects_bad_arguments(_Config) ->
              {fun() -> rigidwarp:run(Scene, #{until => -5}) end, "bad value for option until"},
              {fun() -> rigidwarp:run(Scene, #{integrator => rk4}) end, "bad value for option integrator: rk4"},
              {fun() -> rigidwarp:run(Scene, #{ccd => yes}) end, "bad value for option ccd"},
+             {fun() -> rigidwarp:run(Scene, #{groups => maybe}) end, "bad value for option groups"},
+             {fun() -> rigidwarp:run(Scene, #{group_max => 0}) end, "bad value for option group_max"},
              {fun() -> rigidwarp:run(Scene, not_a_map) end, "options must be a map"},
              {fun() -> rigidwarp:start(Scene, #{engine => reference}) end, "timewarp engine only"},
              {fun() -> rigidwarp:start("/nonexistent.json", #{}) end, "cannot read file"},
