@@ -1,7 +1,7 @@
 %% Volumetric hashing: which integer cells of Z^3 a box touches, and which
 %% bucket of a pool owns a cell. Cells are unbounded (bignums far away).
 -module(rw_hash).
--export([cells/2, cell_of/2, bucket/2, box/2, box_cells/1, region/2, in_region/2]).
+-export([cells/2, cell_of/2, bucket/2, box/2, box_cells/1, box_size/1, region/2, in_region/2]).
 -export_type([cell/0, box/0, region/0]).
 
 -type cell() :: {integer(), integer(), integer()}.
@@ -25,6 +25,10 @@ box({{X0, Y0, Z0}, {X1, Y1, Z1}}, S) ->
 -spec box_cells(box()) -> [cell()].
 box_cells({X0, X1, Y0, Y1, Z0, Z1}) ->
     [{X, Y, Z} || X <- lists:seq(X0, X1), Y <- lists:seq(Y0, Y1), Z <- lists:seq(Z0, Z1)].
+
+%% How many cells the box holds.
+-spec box_size(box()) -> pos_integer().
+box_size({X0, X1, Y0, Y1, Z0, Z1}) -> (X1 - X0 + 1) * (Y1 - Y0 + 1) * (Z1 - Z0 + 1).
 
 -spec cell_of(rw_vec:vec(), float()) -> cell().
 cell_of({X, Y, Z}, S) -> {idx(X, S), idx(Y, S), idx(Z, S)}.
