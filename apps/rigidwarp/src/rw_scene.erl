@@ -148,11 +148,14 @@ build(Map, Overrides, File) ->
     MaxR = lists:max([R || {#sphere{radius = R}, _, _} <- Spheres]),
     CellSize = case maps:find(<<"cell_size">>, Map) of
                    {ok, _} -> positive(Map, <<"cell_size">>, []);
-                   %% 3 radii: a sphere's box spans fewer cells than at 2
-                   %% (less hashing and bucket work per write) while a cell
-                   %% still holds few bodies; measured faster on Parallel,
-                   %% Bouncing and Cylinders than 2 and 4 radii
-                   error -> 3.0 * MaxR
+                   %% 5 radii: a sphere's box mostly stays in one cell
+                   %% for a whole step (one run per write, less hashing and
+                   %% bucket work) while a cell still holds few bodies.
+                   %% Measured on the paper scenes (2 schedulers, 2 s):
+                   %% Cylinders 500 and Bouncing 500 ~25 % faster than
+                   %% at 3 radii, the rest equal or faster; 6-10 radii
+                   %% no better
+                   error -> 5.0 * MaxR
                end,
     no_overlaps(Spheres, Fixtures, CellSize),
     Buckets = override(buckets, Overrides,
