@@ -204,16 +204,24 @@ may_touch(#fixture{box = {X0, Y0, Z0, X1, Y1, Z1}}, {X, Y, Z}, Reach) ->
     not (X + Reach < X0 orelse X - Reach > X1 orelse Y + Reach < Y0 orelse Y - Reach > Y1 orelse
          Z + Reach < Z0 orelse Z - Reach > Z1).
 
+%% (without CCD, squared distances: no square root per member and
+%% substep; a list judged valid either way has its margin, so a decision
+%% that rounding could tip only rebuilds a list one substep early or late)
+fixtures_within(_K, _States, _Anchors, undefined, Limit) when Limit =< 0.0 -> false;
+fixtures_within(K, States, Anchors, undefined, Limit) -> fixtures_within2(K, States, Anchors, Limit * Limit);
 fixtures_within(0, _States, _Anchors, _Disps, _Limit) -> true;
 fixtures_within(K, States, Anchors, Disps, Limit) ->
     #st{p = P} = element(K, States),
-    Moved = vlen(vsub(P, element(K, Anchors))),
-    Swept = case Disps of
-                undefined -> 0.0;
-                _ -> vlen(element(K, Disps))
-            end,
-    case Moved + Swept =< Limit of
+    case vlen(vsub(P, element(K, Anchors))) + vlen(element(K, Disps)) =< Limit of
         true -> fixtures_within(K - 1, States, Anchors, Disps, Limit);
+        false -> false
+    end.
+
+fixtures_within2(0, _States, _Anchors, _Limit2) -> true;
+fixtures_within2(K, States, Anchors, Limit2) ->
+    #st{p = P} = element(K, States),
+    case vlen2(vsub(P, element(K, Anchors))) =< Limit2 of
+        true -> fixtures_within2(K - 1, States, Anchors, Limit2);
         false -> false
     end.
 
@@ -246,17 +254,25 @@ fresh(I0, States, Disps) ->
 valid(States, Anchors, Disps, Limit) ->
     #st{p = P1} = element(1, States),
     Drift = vsub(P1, element(1, Anchors)),
-    within(tuple_size(States), States, Anchors, Drift, Disps, Limit).
+    case Disps of
+        undefined when Limit =< 0.0 -> false;
+        undefined -> within2(tuple_size(States), States, Anchors, Drift, Limit * Limit);
+        _ -> within(tuple_size(States), States, Anchors, Drift, Disps, Limit)
+    end.
+
+within2(0, _States, _Anchors, _Drift, _Limit2) -> true;
+within2(K, States, Anchors, Drift, Limit2) ->
+    #st{p = P} = element(K, States),
+    case vlen2(vsub(vsub(P, element(K, Anchors)), Drift)) =< Limit2 of
+        true -> within2(K - 1, States, Anchors, Drift, Limit2);
+        false -> false
+    end.
 
 within(0, _States, _Anchors, _Drift, _Disps, _Limit) -> true;
 within(K, States, Anchors, Drift, Disps, Limit) ->
     #st{p = P} = element(K, States),
     Moved = vlen(vsub(vsub(P, element(K, Anchors)), Drift)),
-    Swept = case Disps of
-                undefined -> 0.0;
-                _ -> vlen(vsub(element(K, Disps), element(1, Disps)))
-            end,
-    case Moved + Swept =< Limit of
+    case Moved + vlen(vsub(element(K, Disps), element(1, Disps))) =< Limit of
         true -> within(K - 1, States, Anchors, Drift, Disps, Limit);
         false -> false
     end.

@@ -26,11 +26,25 @@ norm({V, W} = Q) when is_float(W) ->
 %% Orientation after turning at angular velocity Omega (rad/s) for Dt
 %% seconds: q + dt/2 * (omega, 0) * q, renormalised.
 -spec integrate(quat(), rw_vec:vec(), float()) -> quat().
+%% (called once per body and substep: mul/2 and norm/1 written out, the
+%% same operations in the same order, so the result is bit for bit theirs)
 integrate(Q, {0.0, 0.0, 0.0}, _Dt) -> Q;
-integrate({V, W} = Q, Omega, Dt) ->
-    {DV, DW} = mul({Omega, 0.0}, Q),
+integrate({{X, Y, Z}, W}, {OX, OY, OZ}, Dt)
+  when is_float(X), is_float(Y), is_float(Z), is_float(W), is_float(OX), is_float(OY), is_float(OZ),
+       is_float(Dt) ->
+    %% mul({Omega, 0.0}, Q)
+    DX = (X * 0.0 + OX * W) + (OY * Z - OZ * Y),
+    DY = (Y * 0.0 + OY * W) + (OZ * X - OX * Z),
+    DZ = (Z * 0.0 + OZ * W) + (OX * Y - OY * X),
+    DW = 0.0 * W - (OX * X + OY * Y + OZ * Z),
     H = 0.5 * Dt,
-    norm({vmadd(V, DV, H), W + DW * H}).
+    X1 = X + DX * H, Y1 = Y + DY * H, Z1 = Z + DZ * H, W1 = W + DW * H,
+    %% norm/1
+    L = math:sqrt(X1 * X1 + Y1 * Y1 + Z1 * Z1 + W1 * W1),
+    case L > 0.0 of
+        true -> S = 1.0 / L, {{X1 * S, Y1 * S, Z1 * S}, W1 / L};
+        false -> {{X1, Y1, Z1}, W1}
+    end.
 
 -spec rotate(quat(), rw_vec:vec()) -> rw_vec:vec().
 rotate({U, W}, V) ->

@@ -31,57 +31,75 @@ pair(M, #sphere{inv_mass = ImA, inv_inertia = IiA, radius = RA}, #st{v = VA, w =
 %% need no such term.
 -spec fixture(#model{}, #sphere{}, #st{}, #contact{}) -> effect().
 fixture(#model{rotation = Rot, gravity = G, dt = Dt} = M, #sphere{inv_mass = Im, inv_inertia = Ii, radius = R},
-        #st{v = V, w = W}, Contact) ->
-    Still = case Rot of true -> vzero(); false -> undefined end,
+        #st{v = V, w = W}, #contact{n = N} = Contact) ->
     Vg = case G of
              undefined -> V;
              _ -> vmadd(V, G, Dt)
          end,
-    {EffA, _} = impulse(M, Im, Ii, R, Vg, W, 0.0, 0.0, 0.0, vzero(), Still, Contact),
-    EffA.
+    %% the pair impulse with B at rest, of zero radius and inverse mass
+    %% (its contact point's velocity is exactly zero), less B's half
+    VcA = case Rot of
+              true -> vadd(Vg, vcross(W, vscale(N, R)));
+              false -> Vg
+          end,
+    {JA, Ub} = normal_friction(M, vsub(vzero(), VcA), Im + 0.0, R * R * Ii + 0.0, Contact),
+    U = case Ub of
+            none -> vzero();
+            _ -> vscale(N, -Ub * Im)
+        end,
+    side(M, JA, Im, R * Ii, U, Contact).
 
-impulse(#model{rotation = Rot, restitution = E, rest_speed = RestSpeed, friction = Mu,
-               correction = Beta, slop = Slop, dt = Dt},
-        ImA, IiA, RA, VA, WA, ImB, IiB, RB, VB, WB, #contact{n = N, depth = Depth, toi = Toi}) ->
+impulse(#model{rotation = Rot} = M, ImA, IiA, RA, VA, WA, ImB, IiB, RB, VB, WB, #contact{n = N} = Contact) ->
     %% velocities of the two surface points in contact
     {VcA, VcB} = case Rot of
                      true -> {vadd(VA, vcross(WA, vscale(N, RA))),
                               vadd(VB, vcross(WB, vscale(N, -RB)))};
                      false -> {VA, VB}
                  end,
-    Vrel = vsub(VcB, VcA),
+    {JA, Ub} = normal_friction(M, vsub(VcB, VcA), ImA + ImB, RA * RA * IiA + RB * RB * IiB, Contact),
+    %% (B receives the opposite impulse; r x J with r = RA n for A and
+    %% r = -RB n, J = -JA for B)
+    {UA, UB} = case Ub of
+                   none -> {vzero(), vzero()};
+                   _ -> {vscale(N, -Ub * ImA), vscale(N, Ub * ImB)}
+               end,
+    {side(M, JA, ImA, RA * IiA, UA, Contact), side(M, JA, -ImB, RB * IiB, UB, Contact)}.
+
+%% The impulse on A from the relative velocity of the contact points and
+%% the inverse masses K (and KRot of rotation), and the pseudo-impulse
+%% that removes penetration (zero when none).
+normal_friction(#model{rotation = Rot, restitution = E, rest_speed = RestSpeed, friction = Mu,
+                       correction = Beta, slop = Slop, dt = Dt},
+                Vrel, K, KRot, #contact{n = N, depth = Depth}) ->
     Vn = vdot(Vrel, N),
-    K = ImA + ImB,
     Jn = case Vn < 0.0 of
              true ->
                  Bounce = case -Vn > RestSpeed of true -> E; false -> 0.0 end,
                  -(1.0 + Bounce) * Vn / K;
              false -> 0.0
          end,
-    %% impulse on A (B receives the opposite)
-    JA = friction(Mu, Rot, Jn, Vrel, Vn, N, K, RA * RA * IiA + RB * RB * IiB, vscale(N, -Jn)),
-    DvA = vscale(JA, ImA),
-    DvB = vscale(JA, -ImB),
-    {DwA, DwB} = case Rot of
-                     true ->
-                         Arm = vcross(N, JA),
-                         %% r x J with r = RA n for A and r = -RB n, J = -JA for B
-                         {vscale(Arm, RA * IiA), vscale(Arm, RB * IiB)};
-                     false -> {undefined, undefined}
-                 end,
+    JA = friction(Mu, Rot, Jn, Vrel, Vn, N, K, KRot, vscale(N, -Jn)),
     Pen = Depth - Slop,
-    {UA, UB} = case Pen > 0.0 of
-                   true ->
-                       Ub = Beta * Pen / Dt / K,
-                       {vscale(N, -Ub * ImA), vscale(N, Ub * ImB)};
-                   false -> {vzero(), vzero()}
-               end,
-    %% a swept contact at fraction Toi: move with the old velocity until then
-    {DuA, DuB} = case Toi > 0.0 of
-                     true -> {vmadd(UA, DvA, -Toi), vmadd(UB, DvB, -Toi)};
-                     false -> {UA, UB}
-                 end,
-    {{DvA, DwA, DuA}, {DvB, DwB, DuB}}.
+    Ub = case Pen > 0.0 of
+             true -> Beta * Pen / Dt / K;
+             false -> none
+         end,
+    {JA, Ub}.
+
+%% One body's effect: impulse JA (on A) scaled by its signed inverse mass,
+%% its angular change from the arm n x JA, and its pseudo-velocity U; a
+%% swept contact at fraction Toi moves with the old velocity until then.
+side(#model{rotation = Rot}, JA, Im, ArmScale, U, #contact{n = N, toi = Toi}) ->
+    Dv = vscale(JA, Im),
+    Dw = case Rot of
+             true -> vscale(vcross(N, JA), ArmScale);
+             false -> undefined
+         end,
+    Du = case Toi > 0.0 of
+             true -> vmadd(U, Dv, -Toi);
+             false -> U
+         end,
+    {Dv, Dw, Du}.
 
 %% Coulomb friction on top of the normal impulse JNormal (both on A).
 friction(undefined, _Rot, _Jn, _Vrel, _Vn, _N, _K, _KRot, JNormal) -> JNormal;
