@@ -23,7 +23,7 @@
 %% member far from every post of a scene then tests none of them.
 -module(rw_island).
 -include("rw_physics.hrl").
--export([new/3, size/1, posts/3, step/3, post/3]).
+-export([new/3, size/1, posts/3, step/3, post/3, advance/3]).
 -export_type([island/0, external/0]).
 -include("rw_vec_inline.hrl").
 
@@ -107,7 +107,12 @@ step(#island{model = M, spheres = {_}} = I0, {St}, External) ->
     {{Post}, {rw_integrate:advance(M, St, V, W, U)}, I};
 step(#island{model = M} = I0, States, External) ->
     {Posts, I} = posts(I0, States, External),
-    {Posts, advance_all(tuple_size(States), M, States, Posts, []), I}.
+    {Posts, advance(M, States, Posts), I}.
+
+%% The members' next pre-response states from their post-response
+%% velocities Posts.
+-spec advance(#model{}, tuple(), tuple()) -> tuple().
+advance(M, States, Posts) -> advance_all(tuple_size(States), M, States, Posts, []).
 
 advance_all(0, _M, _States, _Posts, Acc) -> list_to_tuple(Acc);
 advance_all(K, M, States, Posts, Acc) ->
@@ -174,7 +179,7 @@ displacements(M, States) -> list_to_tuple([rw_integrate:free_displacement(M, St)
 fixtures_near(#island{bounded = false} = I, _States, _Disps) -> I;
 fixtures_near(#island{fanchors = undefined} = I, States, Disps) -> fixtures_fresh(I, States, Disps);
 fixtures_near(#island{fanchors = Anchors, flimit = Limit} = I, States, Disps) ->
-    case fixtures_within(tuple_size(States), States, Anchors, Disps, Limit) of
+    case within(States, Anchors, vzero(), Disps, vzero(), Limit) of
         true -> I;
         false -> fixtures_fresh(I, States, Disps)
     end.
@@ -187,7 +192,7 @@ fixtures_fresh(#island{spheres = Spheres, fixtures = Fixtures} = I, States, Disp
     Reach = lists:max([R || #sphere{radius = R} <- tuple_to_list(Spheres)]),
     Scale = lists:max([rw_vec:max_abs(P) || P <- tuple_to_list(Anchors)]) + 2.0 * Reach,
     Limit = 0.5 * Reach - 1.0e-9 * Scale,
-    case fixtures_within(tuple_size(States), States, Anchors, Disps, Limit) of
+    case within(States, Anchors, vzero(), Disps, vzero(), Limit) of
         true ->
             Near = list_to_tuple([[F || F <- Fixtures, may_touch(F, element(K, Anchors), R + 0.5 * Reach)]
                                   || {K, #sphere{radius = R}} <- lists:zip(lists:seq(1, tuple_size(Spheres)),
@@ -203,27 +208,6 @@ may_touch(#fixture{box = unbounded}, _P, _Reach) -> true;
 may_touch(#fixture{box = {X0, Y0, Z0, X1, Y1, Z1}}, {X, Y, Z}, Reach) ->
     not (X + Reach < X0 orelse X - Reach > X1 orelse Y + Reach < Y0 orelse Y - Reach > Y1 orelse
          Z + Reach < Z0 orelse Z - Reach > Z1).
-
-%% (without CCD, squared distances: no square root per member and
-%% substep; a list judged valid either way has its margin, so a decision
-%% that rounding could tip only rebuilds a list one substep early or late)
-fixtures_within(_K, _States, _Anchors, undefined, Limit) when Limit =< 0.0 -> false;
-fixtures_within(K, States, Anchors, undefined, Limit) -> fixtures_within2(K, States, Anchors, Limit * Limit);
-fixtures_within(0, _States, _Anchors, _Disps, _Limit) -> true;
-fixtures_within(K, States, Anchors, Disps, Limit) ->
-    #st{p = P} = element(K, States),
-    case vlen(vsub(P, element(K, Anchors))) + vlen(element(K, Disps)) =< Limit of
-        true -> fixtures_within(K - 1, States, Anchors, Disps, Limit);
-        false -> false
-    end.
-
-fixtures_within2(0, _States, _Anchors, _Limit2) -> true;
-fixtures_within2(K, States, Anchors, Limit2) ->
-    #st{p = P} = element(K, States),
-    case vlen2(vsub(P, element(K, Anchors))) =< Limit2 of
-        true -> fixtures_within2(K - 1, States, Anchors, Limit2);
-        false -> false
-    end.
 
 %%% The neighbour list
 
@@ -253,12 +237,24 @@ fresh(I0, States, Disps) ->
 %% member's.
 valid(States, Anchors, Disps, Limit) ->
     #st{p = P1} = element(1, States),
-    Drift = vsub(P1, element(1, Anchors)),
-    case Disps of
-        undefined when Limit =< 0.0 -> false;
-        undefined -> within2(tuple_size(States), States, Anchors, Drift, Limit * Limit);
-        _ -> within(tuple_size(States), States, Anchors, Drift, Disps, Limit)
-    end.
+    Disp1 = case Disps of
+                undefined -> undefined;
+                _ -> element(1, Disps)
+            end,
+    within(States, Anchors, vsub(P1, element(1, Anchors)), Disps, Disp1, Limit).
+
+%% Every member moved less than Limit from its anchor, less Drift, plus
+%% (with CCD) its displacement less Disp0: the test of both lists, the
+%% fixtures' with no drift and no reference displacement (fixtures do not
+%% move). Without CCD it compares squared distances: no square root per
+%% member and substep; a list judged valid either way has its margin, so
+%% a decision that rounding could tip only rebuilds a list one substep
+%% early or late.
+within(_States, _Anchors, _Drift, undefined, _Disp0, Limit) when Limit =< 0.0 -> false;
+within(States, Anchors, Drift, undefined, _Disp0, Limit) ->
+    within2(tuple_size(States), States, Anchors, Drift, Limit * Limit);
+within(States, Anchors, Drift, Disps, Disp0, Limit) ->
+    within(tuple_size(States), States, Anchors, Drift, Disps, Disp0, Limit).
 
 within2(0, _States, _Anchors, _Drift, _Limit2) -> true;
 within2(K, States, Anchors, Drift, Limit2) ->
@@ -268,12 +264,12 @@ within2(K, States, Anchors, Drift, Limit2) ->
         false -> false
     end.
 
-within(0, _States, _Anchors, _Drift, _Disps, _Limit) -> true;
-within(K, States, Anchors, Drift, Disps, Limit) ->
+within(0, _States, _Anchors, _Drift, _Disps, _Disp0, _Limit) -> true;
+within(K, States, Anchors, Drift, Disps, Disp0, Limit) ->
     #st{p = P} = element(K, States),
     Moved = vlen(vsub(vsub(P, element(K, Anchors)), Drift)),
-    case Moved + vlen(vsub(element(K, Disps), element(1, Disps))) =< Limit of
-        true -> within(K - 1, States, Anchors, Drift, Disps, Limit);
+    case Moved + vlen(vsub(element(K, Disps), Disp0)) =< Limit of
+        true -> within(K - 1, States, Anchors, Drift, Disps, Disp0, Limit);
         false -> false
     end.
 

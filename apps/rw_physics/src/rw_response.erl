@@ -43,11 +43,7 @@ fixture(#model{rotation = Rot, gravity = G, dt = Dt} = M, #sphere{inv_mass = Im,
               false -> Vg
           end,
     {JA, Ub} = normal_friction(M, vsub(vzero(), VcA), Im + 0.0, R * R * Ii + 0.0, Contact),
-    U = case Ub of
-            none -> vzero();
-            _ -> vscale(N, -Ub * Im)
-        end,
-    side(M, JA, Im, R * Ii, U, Contact).
+    side(JA, arm(Rot, N, JA), Im, R * Ii, Ub, Contact).
 
 impulse(#model{rotation = Rot} = M, ImA, IiA, RA, VA, WA, ImB, IiB, RB, VB, WB, #contact{n = N} = Contact) ->
     %% velocities of the two surface points in contact
@@ -58,12 +54,9 @@ impulse(#model{rotation = Rot} = M, ImA, IiA, RA, VA, WA, ImB, IiB, RB, VB, WB, 
                  end,
     {JA, Ub} = normal_friction(M, vsub(VcB, VcA), ImA + ImB, RA * RA * IiA + RB * RB * IiB, Contact),
     %% (B receives the opposite impulse; r x J with r = RA n for A and
-    %% r = -RB n, J = -JA for B)
-    {UA, UB} = case Ub of
-                   none -> {vzero(), vzero()};
-                   _ -> {vscale(N, -Ub * ImA), vscale(N, Ub * ImB)}
-               end,
-    {side(M, JA, ImA, RA * IiA, UA, Contact), side(M, JA, -ImB, RB * IiB, UB, Contact)}.
+    %% r = -RB n, J = -JA for B: the same arm n x JA)
+    Arm = arm(Rot, N, JA),
+    {side(JA, Arm, ImA, RA * IiA, Ub, Contact), side(JA, Arm, -ImB, RB * IiB, Ub, Contact)}.
 
 %% The impulse on A from the relative velocity of the contact points and
 %% the inverse masses K (and KRot of rotation), and the pseudo-impulse
@@ -86,15 +79,24 @@ normal_friction(#model{rotation = Rot, restitution = E, rest_speed = RestSpeed, 
          end,
     {JA, Ub}.
 
-%% One body's effect: impulse JA (on A) scaled by its signed inverse mass,
-%% its angular change from the arm n x JA, and its pseudo-velocity U; a
-%% swept contact at fraction Toi moves with the old velocity until then.
-side(#model{rotation = Rot}, JA, Im, ArmScale, U, #contact{n = N, toi = Toi}) ->
+%% n x JA with rotation, else undefined.
+arm(true, N, JA) -> vcross(N, JA);
+arm(false, _N, _JA) -> undefined.
+
+%% One body's effect: impulse JA (on A) scaled by its signed inverse mass
+%% Im (negative for B), its angular change from Arm, and its pseudo-velocity
+%% against n (-Ub Im, zero when nothing penetrates); a swept contact at
+%% fraction Toi moves with the old velocity until then.
+side(JA, Arm, Im, ArmScale, Ub, #contact{n = N, toi = Toi}) ->
     Dv = vscale(JA, Im),
-    Dw = case Rot of
-             true -> vscale(vcross(N, JA), ArmScale);
-             false -> undefined
+    Dw = case Arm of
+             undefined -> undefined;
+             _ -> vscale(Arm, ArmScale)
          end,
+    U = case Ub of
+            none -> vzero();
+            _ -> vscale(N, -Ub * Im)
+        end,
     Du = case Toi > 0.0 of
              true -> vmadd(U, Dv, -Toi);
              false -> U
