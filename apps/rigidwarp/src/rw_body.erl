@@ -272,21 +272,16 @@ common(Type, Msg, D) ->
 member(info, {bundle, S, _, _}, #d{sim = #sim{plans = Plans}, idx = Idx} = D) ->
     [{_, #{gather := From}}] = ets:lookup(Plans, {S, Idx}),
     {next_state, gather, D#d{gathering = {S, From, []}, lvt = S, gvt = S}, [postpone]};
-member(info, {regroup, S}, #d{sim = #sim{gvt = Gvt}} = D) ->
+member(info, {regroup, S}, D) ->
     %% this body leads a group from the regroup point before S (its first
     %% member is on the way) and that group changes again at S
-    Gvt ! {regroup_ack, S, self()},
-    {keep_state, D#d{stop_at = lists:usort([S | D#d.stop_at])}};
+    {keep_state, stop_at(S, D)};
 member(info, {watch, Pid, _}, #d{idx = Idx, lvt = Lvt}) ->
     %% its leader holds its LVT: let the watcher look again
     Pid ! {reached, Idx, Lvt},
     keep_state_and_data;
-member(info, Msg, _D) when element(1, Msg) =:= gvt; element(1, Msg) =:= reached ->
-    keep_state_and_data;
-member(info, Msg, D) when element(1, Msg) =:= antievent; element(1, Msg) =:= ack ->
-    stray(Msg, D);
 member(Type, Msg, D) ->
-    unexpected(member, Type, Msg, D).
+    not_stepping(member, Type, Msg, D).
 
 %% Collecting the members of the group this process leads from the regroup
 %% point on.
@@ -302,12 +297,18 @@ gather(info, {watch, Pid, T}, D) ->
 gather(info, {regroup, S}, #d{gathering = {Now, _, _}} = D) when S > Now ->
     %% the group this process gathers changes again at S
     {keep_state, on_regroup(S, D)};
-gather(info, Msg, _D) when element(1, Msg) =:= gvt; element(1, Msg) =:= reached ->
-    keep_state_and_data;
-gather(info, Msg, D) when element(1, Msg) =:= antievent; element(1, Msg) =:= ack ->
-    stray(Msg, D);
 gather(Type, Msg, D) ->
-    unexpected(gather, Type, Msg, D).
+    not_stepping(gather, Type, Msg, D).
+
+%% The rest of what a process that steps no entity (member, gather) may
+%% receive: GVT and reached notices are no use to it, antievents and
+%% acknowledgements are strays, and anything else is a protocol error.
+not_stepping(_Phase, info, Msg, _D) when element(1, Msg) =:= gvt; element(1, Msg) =:= reached ->
+    keep_state_and_data;
+not_stepping(_Phase, info, Msg, D) when element(1, Msg) =:= antievent; element(1, Msg) =:= ack ->
+    stray(Msg, D);
+not_stepping(Phase, Type, Msg, D) ->
+    unexpected(Phase, Type, Msg, D).
 
 %% An antievent or acknowledgement about a state after the regroup point
 %% that this process deleted before it handed over: the other entity
@@ -371,13 +372,16 @@ regroup(_Last, #d{stop_at = [S | _]} = D) -> {S, true, D}.
 %% The GVT process says this entity's group changes at S: stop there,
 %% rolling back to S first if it is already past (its states after S are
 %% no use to the new group), and say so.
-on_regroup(S, #d{lvt = Lvt, sim = #sim{gvt = Gvt}} = D0) ->
-    D = case Lvt > S of
-            true -> roll_back(S, D0);
-            false -> D0
-        end,
+on_regroup(S, #d{lvt = Lvt} = D) ->
+    stop_at(S, case Lvt > S of
+                   true -> roll_back(S, D);
+                   false -> D
+               end).
+
+%% Stop at the regroup point S, and tell the GVT process so.
+stop_at(S, #d{sim = #sim{gvt = Gvt}, stop_at = StopAt} = D) ->
     Gvt ! {regroup_ack, S, self()},
-    D#d{stop_at = lists:usort([S | D#d.stop_at])}.
+    D#d{stop_at = lists:usort([S | StopAt])}.
 
 %% At the regroup point S, with GVT at S: send every member's state and
 %% post-response velocities at S to its new leader, then lead a new group
@@ -534,11 +538,7 @@ chain(T, _States, Last, _D, Island, Passed, Acc) when T >= Last ->
 chain(T, States, Last, #d{model = M, dt = Dt} = D, Island, Passed, Acc) ->
     {Posts, Next, Island1} =
         case D#d.base of
-            {T, Base} ->
-                {Base, list_to_tuple([begin
-                                          {V, W, U} = element(K, Base),
-                                          rw_integrate:advance(M, element(K, States), V, W, U)
-                                      end || K <- lists:seq(1, tuple_size(States))]), Island};
+            {T, Base} -> {Base, rw_island:advance(M, States, Base), Island};
             _ ->
                 rw_island:step(Island, States, external(T, D))
         end,
@@ -891,33 +891,37 @@ is_sync(T, #d{frame = F, stride = S, end_t = End, sim = #sim{period = P}}) ->
 
 %% Commit every member's state at T: its record, and the count of bodies
 %% committed at T.
-commit(T, States, Posts, #d{sim = Sim, spheres = Spheres} = D) ->
-    case T > D#d.gvt andalso is_sync(T, D) andalso not lists:member(T, D#d.committed) of
-        true ->
-            N = tuple_size(Spheres),
-            ets:insert(Sim#sim.records, [begin
-                                              #sphere{idx = Idx, id = Id} = element(K, Spheres),
-                                              #st{p = P, q = Q} = element(K, States),
-                                              {V, W, _U} = element(K, Posts),
-                                              {{T, Idx}, {Id, P, V, Q, W}}
-                                          end || K <- lists:seq(1, N)]),
-            _ = case ets:update_counter(Sim#sim.counts, T, N, {T, 0}) of
-                    C when C =:= Sim#sim.n -> Sim#sim.gvt ! {complete, T};
-                    _ -> ok
-                end,
-            D#d{committed = [T | D#d.committed]};
-        false ->
-            D
+commit(T, States, Posts, D) ->
+    case uncommitted(T, D) of
+        true -> commit_now(T, States, Posts, D);
+        false -> D
     end.
+
+%% T is a sync point after GVT that this entity has not committed yet.
+uncommitted(T, D) -> T > D#d.gvt andalso is_sync(T, D) andalso not lists:member(T, D#d.committed).
+
+commit_now(T, States, Posts, #d{sim = Sim, spheres = Spheres} = D) ->
+    N = tuple_size(Spheres),
+    ets:insert(Sim#sim.records, [begin
+                                      #sphere{idx = Idx, id = Id} = element(K, Spheres),
+                                      #st{p = P, q = Q} = element(K, States),
+                                      {V, W, _U} = element(K, Posts),
+                                      {{T, Idx}, {Id, P, V, Q, W}}
+                                  end || K <- lists:seq(1, N)]),
+    _ = case ets:update_counter(Sim#sim.counts, T, N, {T, 0}) of
+            C when C =:= Sim#sim.n -> Sim#sim.gvt ! {complete, T};
+            _ -> ok
+        end,
+    D#d{committed = [T | D#d.committed]}.
 
 %% An entity waiting at LVT_ub (or at the end time) commits its LVT once
 %% nothing is awaited there; a later event at LVT withdraws it again.
 commit_lvt(#d{lvt = Lvt} = D) ->
-    case Lvt > D#d.gvt andalso is_sync(Lvt, D) andalso not lists:member(Lvt, D#d.committed) of
+    case uncommitted(Lvt, D) of
         true ->
             States = state_at(Lvt, D),
             {Posts, D1} = posts(Lvt, States, D),
-            commit(Lvt, States, Posts, D1);
+            commit_now(Lvt, States, Posts, D1);
         false ->
             D
     end.

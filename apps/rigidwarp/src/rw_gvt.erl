@@ -208,18 +208,19 @@ advance_over(#s{complete = C, sim = Sim, unready = U} = S) ->
 
 %% GVT passes Next: write the frame, plan the groups, forget its records.
 pass(Next, #s{sim = #sim{end_t = End} = Sim} = S) ->
-    S0 = case is_frame(Next, Sim) of
-             true ->
-                 %% frames leave the engine with their time in ms
-                 Ms = ms(Next, S),
-                 Frame = {frame, Ms, ets:select(Sim#sim.records, [{{{Next, '_'}, '$1'}, [], ['$1']}])},
-                 write_ring(Ms, Frame, S),
-                 _ = [P ! {rw_frame, self(), Frame} || P <- S#s.subscribers],
-                 S#s{frames = S#s.frames + 1};
-             false ->
-                 S
-         end,
-    S1 = regroup(Next, S0),
+    {Records, S0} = case is_frame(Next, Sim) of
+                        true ->
+                            %% frames leave the engine with their time in ms
+                            Ms = ms(Next, S),
+                            Rs = records_at(Next, Sim),
+                            Frame = {frame, Ms, [R || {_, R} <- Rs]},
+                            write_ring(Ms, Frame, S),
+                            _ = [P ! {rw_frame, self(), Frame} || P <- S#s.subscribers],
+                            {Rs, S#s{frames = S#s.frames + 1}};
+                        false ->
+                            {none, S}
+                    end,
+    S1 = regroup(Next, Records, S0),
     ets:select_delete(Sim#sim.records, [{{{Next, '_'}, '_'}, [], [true]}]),
     ets:delete(Sim#sim.counts, Next),
     S2 = S1#s{gvt = Next, last_advance = now_ms()},
@@ -229,12 +230,13 @@ pass(Next, #s{sim = #sim{end_t = End} = Sim} = S) ->
     end.
 
 %% At a regroup point X, plan the groups at X + period from the states
-%% committed at X (still in the records table) and the pairs the bodies
-%% said met often lately, and write who moves then. Without a group and
-%% without such a pair nothing can change, and nothing is planned.
-regroup(_X, #s{sim = #sim{period = 0}} = S) -> S;
-regroup(X, #s{sim = #sim{period = P, end_t = End}} = S) when X rem P =/= 0; X + P >= End -> S;
-regroup(X, #s{sim = #sim{period = P, group_max = Max, grouping = Mode, plans = Plans, stats = Stats, met = MetTab},
+%% committed at X (Records, as the frame at X read them, or none: still in
+%% the records table) and the pairs the bodies said met often lately, and
+%% write who moves then. Without a group and without such a pair nothing
+%% can change, and nothing is planned.
+regroup(_X, _Records, #s{sim = #sim{period = 0}} = S) -> S;
+regroup(X, _Records, #s{sim = #sim{period = P, end_t = End}} = S) when X rem P =/= 0; X + P >= End -> S;
+regroup(X, Records, #s{sim = #sim{period = P, group_max = Max, grouping = Mode, plans = Plans, stats = Stats, met = MetTab},
               leaders = Old, pids = Pids, grouped = Grouped} = S) ->
     %% the pairs that met often since the last regroup point but one
     Met = maps:from_list([{Pair, true} || Pair <- ets:select(MetTab, [{{'$1', '$2'}, [{'>=', '$2', X - P}], ['$1']}])]),
@@ -243,7 +245,7 @@ regroup(X, #s{sim = #sim{period = P, group_max = Max, grouping = Mode, plans = P
         true ->
             S;
         false ->
-            New = rw_regroup:plan(committed(X, S), Old, Max, case Mode of eager -> eager; persistent -> Met end),
+            New = rw_regroup:plan(committed(X, Records, S), Old, Max, case Mode of eager -> eager; persistent -> Met end),
             Moves = rw_regroup:moves(Old, New, Pids),
             At = X + P,
             ets:insert(Plans, [{{At, I}, Move} || {I, Move} <- maps:to_list(Moves)]),
@@ -258,9 +260,13 @@ regroup(X, #s{sim = #sim{period = P, group_max = Max, grouping = Mode, plans = P
     end.
 
 %% Every body's committed state at sync point X: {Idx, Radius, P, V}.
-committed(X, #s{sim = #sim{records = Records}, radii = Radii}) ->
-    [{I, maps:get(I, Radii), Pos, V}
-     || {I, {_, Pos, V, _, _}} <- ets:select(Records, [{{{X, '$1'}, '$2'}, [], [{{'$1', '$2'}}]}])].
+committed(X, none, #s{sim = Sim} = S) -> committed(X, records_at(X, Sim), S);
+committed(_X, Records, #s{radii = Radii}) ->
+    [{I, maps:get(I, Radii), Pos, V} || {I, {_, Pos, V, _, _}} <- Records].
+
+%% The records committed at sync point T, {Idx, Record}, in idx order (the
+%% table is ordered by {T, Idx}).
+records_at(T, #sim{records = Records}) -> ets:select(Records, [{{{T, '$1'}, '$2'}, [], [{{'$1', '$2'}}]}]).
 
 wake(G, Waiting) ->
     case gb_sets:is_empty(Waiting) of
