@@ -82,13 +82,7 @@ frames_file(Config) ->
 %% parabola exactly where symplectic Euler does not, and both engines agree.
 integrator_and_ccd_flags(Config) ->
     Scene = rw_test_lib:scenario("projectile.json"),
-    Frames = fun(Name, Flags) ->
-                     Out = filename:join(?config(priv_dir, Config), Name),
-                     {0, _, _} = rw_test_lib:run_escript(["run", Scene, "--until", "200", "--quiet", "--frames", Out
-                                                         | Flags]),
-                     {ok, Bin} = file:read_file(Out),
-                     Bin
-             end,
+    Frames = fun(Name, Flags) -> element(1, run_frames(Config, Scene, "200", Name, Flags)) end,
     Default = Frames("default.jsonl", []),
     Verlet = Frames("verlet.jsonl", ["--integrator", "verlet", "--ccd", "on"]),
     ?assertEqual(Verlet, Frames("verlet-ref.jsonl", ["--integrator", "verlet", "--ccd", "on", "--engine", "reference"])),
@@ -100,10 +94,7 @@ integrator_and_ccd_flags(Config) ->
 groups_flags(Config) ->
     Scene = rw_test_lib:scenario("cylinders_200.json"),
     Run = fun(Name, Flags) ->
-                  Out = filename:join(?config(priv_dir, Config), Name),
-                  {0, Stdout, _} = rw_test_lib:run_escript(["run", Scene, "--until", "800", "--quiet", "--frames", Out
-                                                           | Flags]),
-                  {ok, Bin} = file:read_file(Out),
+                  {Bin, Stdout} = run_frames(Config, Scene, "800", Name, Flags),
                   {Bin, last_json_line(Stdout)}
           end,
     {Default, #{<<"regroups">> := Regroups}} = Run("default.jsonl", []),
@@ -112,6 +103,14 @@ groups_flags(Config) ->
     ?assert(Regroups > 0 andalso PairRegroups > 0),
     ?assertEqual(Default, Alone),
     ?assertEqual(Default, Pairs).
+
+%% Run Scene until UntilMs with Flags (exit 0), its frames to Name in the
+%% test's directory: {Frames, Stdout}.
+run_frames(Config, Scene, UntilMs, Name, Flags) ->
+    Out = filename:join(?config(priv_dir, Config), Name),
+    {0, Stdout, _} = rw_test_lib:run_escript(["run", Scene, "--until", UntilMs, "--quiet", "--frames", Out | Flags]),
+    {ok, Bin} = file:read_file(Out),
+    {Bin, Stdout}.
 
 bad_flags_exit_2(_Config) ->
     Scene = rw_test_lib:scenario("head_on_elastic.json"),
