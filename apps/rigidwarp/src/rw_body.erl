@@ -602,7 +602,7 @@ member_write(K, T0, States, #d{spheres = Spheres, model = M}) ->
 probe_commit([{_, Pid, Cells, Spans}], Write, Last) ->
     rw_bucket:probe_commit(Pid, Cells, Write, Spans, Last);
 probe_commit(Plan, Write, Last) ->
-    Results = [rw_bucket:lock_probe(Pid, Cells, Write, Spans) || {_, Pid, Cells, Spans} <- Plan],
+    Results = [rw_bucket:lock_probe(Pid, Cells, for_bucket(Write, Spans), Spans) || {_, Pid, Cells, Spans} <- Plan],
     {UpTo, Hits} = case [R || R <- Results, R =/= none] of
                        [] -> {Last, []};
                        Found ->
@@ -615,6 +615,14 @@ probe_commit(Plan, Write, Last) ->
     Ids = rw_bucket:contact_ids(UpTo, [{I, element(1, E)} || {I, E, _} <- Hits]),
     [rw_bucket:commit_unlock(Pid, self(), UpTo, Ids) || {_, Pid, _, _} <- Plan],
     {UpTo, Hits, Ids}.
+
+%% A write as one bucket of several needs it: with the payloads of only
+%% the members in its cells (each bucket copies and keeps what it gets).
+for_bucket({Writer, T0, Payloads, Bounds} = Write, Spans) ->
+    case lists:usort([Idx || {_, _, _, Ms} <- Spans, {Idx, _, _} <- Ms]) of
+        Idxs when length(Idxs) =:= map_size(Payloads) -> Write;
+        Idxs -> {Writer, T0, maps:with(Idxs, Payloads), Bounds}
+    end.
 
 %% The members' pre-response states at substep T (GVT =< T =< LVT), as a
 %% tuple: in the newest write that starts at or before T.

@@ -16,7 +16,7 @@
 -include("rw_vec_inline.hrl").
 
 -spec sphere_sphere(rw_vec:vec(), float(), rw_vec:vec(), float()) -> #contact{} | none.
-sphere_sphere(PA, RA, PB, RB) ->
+sphere_sphere(PA, RA, PB, RB) when is_float(RA), is_float(RB) ->
     D = vsub(PB, PA),
     Sum = RA + RB,
     L2 = vlen2(D),
@@ -61,13 +61,14 @@ swept_sphere_sphere(PA, DA, RA, PB, DB, RB) ->
     end.
 
 -spec sphere_fixture(rw_vec:vec(), float(), rw_shape:static_shape()) -> [feature_contact()].
-sphere_fixture(P, R, {plane, N, Off}) ->
+sphere_fixture(P, R, {plane, N, Off}) when is_float(R), is_float(Off) ->
     Depth = R - (vdot(N, P) - Off),
     case Depth > 0.0 of
         true -> [{0, #contact{n = vneg(N), depth = Depth}}];
         false -> []
     end;
-sphere_fixture({PX, PY, PZ} = P, R, {box, {CX, CY, CZ} = C, {EX, EY, EZ} = E, hollow}) ->
+sphere_fixture({PX, PY, PZ} = P, R, {box, {CX, CY, CZ} = C, {EX, EY, EZ} = E, hollow})
+  when ?IS_VEC(PX, PY, PZ), ?IS_VEC(CX, CY, CZ), ?IS_VEC(EX, EY, EZ), is_float(R) ->
     %% Most substeps a sphere is well inside its container: test the six
     %% depths as walls/4 computes them (a unit normal's dot product is the
     %% coordinate itself) before building any contact.
@@ -88,7 +89,8 @@ sphere_fixture(P, R, {cylinder, C, Axis, CR, H}) ->
 -spec fixture(rw_vec:vec(), float(), #fixture{}) -> [feature_contact()].
 fixture(P, R, #fixture{shape = Shape, box = unbounded}) ->
     sphere_fixture(P, R, Shape);
-fixture({X, Y, Z} = P, R, #fixture{shape = Shape, box = {X0, Y0, Z0, X1, Y1, Z1}}) ->
+fixture({X, Y, Z} = P, R, #fixture{shape = Shape, box = {X0, Y0, Z0, X1, Y1, Z1}})
+  when ?IS_VEC(X, Y, Z), is_float(R), ?IS_VEC(X0, Y0, Z0), ?IS_VEC(X1, Y1, Z1) ->
     case X + R < X0 orelse X - R > X1 orelse Y + R < Y0 orelse Y - R > Y1 orelse
          Z + R < Z0 orelse Z - R > Z1 of
         true -> [];
@@ -193,7 +195,7 @@ solid_box({PX, PY, PZ} = P, R, {CX, CY, CZ} = C, {EX, EY, EZ} = E) ->
             point_contact(P, R, Closest)
     end.
 
-point_contact(P, R, Closest) ->
+point_contact(P, R, Closest) when is_float(R) ->
     D = vsub(Closest, P),
     L2 = vlen2(D),
     case L2 < R * R of
@@ -206,7 +208,7 @@ point_contact(P, R, Closest) ->
 
 clamp(X, Lo, Hi) -> max(Lo, min(Hi, X)).
 
-cylinder(P, R, C, Axis, CR, H) ->
+cylinder(P, R, C, Axis, CR, H) when is_float(R), is_float(CR), is_float(H) ->
     Rel = vsub(P, C),
     H0 = vdot(Rel, Axis),
     Radial = vmadd(Rel, Axis, -H0),
