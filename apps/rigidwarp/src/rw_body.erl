@@ -184,7 +184,7 @@ members(Spheres0, #d{model = M, fixtures = Fixtures} = D) ->
 -spec ready(gen_statem:event_type(), term(), #d{}) -> gen_statem:event_handler_result(atom()).
 ready(info, go, #d{start = St0} = D) ->
     %% the initial state is written like any other, at LVT 0
-    settle(write_states(0, [[St] || St <- tuple_to_list(St0)], 0, D#d{lvt = 0, start = undefined}));
+    settle(write_states(0, [add(<<>>, St, D) || St <- tuple_to_list(St0)], 0, D#d{lvt = 0, start = undefined}));
 ready(info, {delay, Seed, MaxMs}, D) ->
     _ = rand:seed(exsss, Seed),
     {keep_state, D#d{delay = MaxMs}};
@@ -492,10 +492,10 @@ publish_lvt(#d{sim = #sim{lvts = Lvts}, idx = Idx, idxs = Idxs, lvt = Lvt, watch
 %%% Step: integrate from LVT to Last assuming no new contacts, write
 
 advance(Lvt, Last, #d{spheres = Spheres, island = Island0} = D) ->
-    {Passed, States, Island} = ?TIMED(D, ?ST_RED_INTEGRATE, chain(Lvt, state_at(Lvt, D), Last, D, Island0)),
-    counters:add(D#d.sim#sim.stats, ?ST_COMPUTED, length(hd(States)) * tuple_size(Spheres)),
+    {Passed, Steps, Island} = ?TIMED(D, ?ST_RED_INTEGRATE, chain(Lvt, state_at(Lvt, D), Last, D, Island0)),
+    counters:add(D#d.sim#sim.stats, ?ST_COMPUTED, steps(Lvt, Last, D) * tuple_size(Spheres)),
     counters:add(D#d.sim#sim.stats, ?ST_STEPS, 1),
-    D1 = write_states(Lvt + D#d.dt, States, Last, D#d{island = Island}),
+    D1 = write_states(Lvt + D#d.dt, Steps, Last, D#d{island = Island}),
     %% commit every frame time this step moved past
     #d{lvt = NewLvt} = D1,
     ?TIMED(D, ?ST_RED_GVT, lists:foldl(fun({T, Sts, Posts}, Acc) when T < NewLvt -> commit(T, Sts, Posts, Acc);
@@ -508,20 +508,32 @@ timed(Stats, Stage, Fun) ->
     counters:add(Stats, Stage, reductions() - T0),
     Result.
 
-%% The members' states after T up to Last (one list per member, one state
-%% per substep), the post-response velocities at each sync point passed on
-%% the way (to commit), and the island with its neighbour list.
+%% The members' states after T up to Last (one binary per member of its
+%% states appended one per substep, rw_states:append/4), the post-response
+%% velocities at each sync point passed on the way (to commit), and the
+%% island with its neighbour list.
 chain(T, {St}, Last, #d{spheres = {_}} = D, Island0) ->
-    {Passed, States, Island} = alone(T, St, Last, D, Island0, [], []),
-    {Passed, [States], Island};
+    {Passed, Bin, Island} = alone(T, St, Last, D, Island0, [], <<>>),
+    {Passed, [Bin], Island};
 chain(T, States, Last, D, Island0) ->
-    {Passed, Tuples, Island} = chain(T, States, Last, D, Island0, [], []),
-    {Passed, [[element(K, Sts) || Sts <- Tuples] || K <- lists:seq(1, tuple_size(States))], Island}.
+    chain(T, States, Last, D, Island0, [], [<<>> || _ <- tuple_to_list(States)]).
+
+%% The number of substeps from T to Last.
+steps(T, Last, #d{dt = Dt}) -> (Last - T + Dt - 1) div Dt.
+
+%% Bin with St appended (and with CCD its free displacement).
+add(Bin, St, #d{model = #model{rotation = Rot, ccd = false}}) -> rw_states:append(Bin, St, undefined, Rot);
+add(Bin, St, #d{model = #model{rotation = Rot} = M}) ->
+    rw_states:append(Bin, St, rw_integrate:free_displacement(M, St), Rot).
+
+%% Each member's binary with its state in States appended.
+add_all(_K, _States, [], _D) -> [];
+add_all(K, States, [Bin | Bins], D) -> [add(Bin, element(K, States), D) | add_all(K + 1, States, Bins, D)].
 
 %% A body on its own, the hot path of free flight.
-alone(T, _St, Last, _D, Island, Passed, Acc) when T >= Last ->
-    {lists:reverse(Passed), lists:reverse(Acc), Island};
-alone(T, St, Last, #d{model = M, dt = Dt} = D, Island0, Passed, Acc) ->
+alone(T, _St, Last, _D, Island, Passed, Bin) when T >= Last ->
+    {lists:reverse(Passed), Bin, Island};
+alone(T, St, Last, #d{model = M, dt = Dt} = D, Island0, Passed, Bin) ->
     {{V, W, U} = Post, Island} = case D#d.base of
                                      {T, {Base}} -> {Base, Island0};
                                      _ -> rw_island:post(Island0, St, external(T, D))
@@ -531,11 +543,11 @@ alone(T, St, Last, #d{model = M, dt = Dt} = D, Island0, Passed, Acc) ->
                   true -> [{T, {St}, {Post}} | Passed];
                   false -> Passed
               end,
-    alone(T + Dt, Next, Last, D, Island, Passed1, [Next | Acc]).
+    alone(T + Dt, Next, Last, D, Island, Passed1, add(Bin, Next, D)).
 
-chain(T, _States, Last, _D, Island, Passed, Acc) when T >= Last ->
-    {lists:reverse(Passed), lists:reverse(Acc), Island};
-chain(T, States, Last, #d{model = M, dt = Dt} = D, Island, Passed, Acc) ->
+chain(T, _States, Last, _D, Island, Passed, Bins) when T >= Last ->
+    {lists:reverse(Passed), Bins, Island};
+chain(T, States, Last, #d{model = M, dt = Dt} = D, Island, Passed, Bins) ->
     {Posts, Next, Island1} =
         case D#d.base of
             {T, Base} -> {Base, rw_island:advance(M, States, Base), Island};
@@ -546,7 +558,7 @@ chain(T, States, Last, #d{model = M, dt = Dt} = D, Island, Passed, Acc) ->
                   true -> [{T, States, Posts} | Passed];
                   false -> Passed
               end,
-    chain(T + Dt, Next, Last, D, Island1, Passed1, [Next | Acc]).
+    chain(T + Dt, Next, Last, D, Island1, Passed1, add_all(1, Next, Bins, D)).
 
 %% A group steps at most this many body-substeps per write (16 substeps
 %% for 64 members; a body alone, a stride): a write it has to truncate at
@@ -556,11 +568,12 @@ chain(T, States, Last, #d{model = M, dt = Dt} = D, Island, Passed, Acc) ->
 %% that it cost more than it saved.
 -define(WRITE_BUDGET, 1024).
 
-%% Write States (per member, its states per substep from T0 on) to the
-%% TVHT under lock; stop at the first substep with contacts and send the
-%% events for them. LVT becomes that substep, or Last.
-write_states(T0, States, Last, #d{sim = Sim, written = Written} = D) ->
-    Members = [member_write(K, T0, Sts, D) || {K, Sts} <- lists:zip(lists:seq(1, length(States)), States)],
+%% Write Steps (per member, its states from T0 on, one per substep,
+%% appended to a binary) to the TVHT under lock; stop at the first substep
+%% with contacts and send the events for them. LVT becomes that substep, or
+%% Last.
+write_states(T0, Steps, Last, #d{sim = Sim, written = Written} = D) ->
+    Members = [member_write(K, T0, Bin, D) || {K, Bin} <- lists:zip(lists:seq(1, length(Steps)), Steps)],
     Packed = list_to_tuple([P || {_, _, P} <- Members]),
     Write = {self(), T0, maps:from_list([{Idx, Payload} || {{Idx, _, _, _, _, _} = Payload, _, _} <- Members]),
              union([Bounds || {{_, _, _, _, _, Bounds}, _, _} <- Members])},
@@ -570,7 +583,7 @@ write_states(T0, States, Last, #d{sim = Sim, written = Written} = D) ->
     maybe_delay(D),
     {UpTo, Hits, Ids} = probe_commit(Plan, Write, Last),
     Where = [{B, Pid, Cells} || {B, Pid, Cells, _} <- Plan],
-    MaxWindow = max(1, min(D#d.stride div D#d.dt, ?WRITE_BUDGET div length(States))),
+    MaxWindow = max(1, min(D#d.stride div D#d.dt, ?WRITE_BUDGET div length(Steps))),
     Window = case Hits of
                  [] -> min(MaxWindow, 2 * D#d.window);
                  _ -> min(MaxWindow, max(1, 2 * ((UpTo - T0) div D#d.dt + 1)))
@@ -580,21 +593,16 @@ write_states(T0, States, Last, #d{sim = Sim, written = Written} = D) ->
 
 %% One member's part of a write: its payload for the buckets, what
 %% cell_spans/3 needs, and its packed states.
-member_write(K, T0, States, #d{spheres = Spheres, model = M}) ->
+member_write(K, T0, Bin, #d{spheres = Spheres, model = M}) ->
     #sphere{idx = Idx, radius = R} = S = element(K, Spheres),
-    DispList = case M#model.ccd of
-                   true -> [rw_integrate:free_displacement(M, St) || St <- States];
-                   false -> undefined
-               end,
-    Packed = rw_states:pack(States, DispList, M#model.rotation, M#model.ccd),
-    {Disps, Extents} = case DispList of
-                           undefined -> {undefined, rw_states:extents(Packed)};
-                           _ ->
-                               DispTuple = list_to_tuple(DispList),
-                               #st{p = {X, Y, Z}} = hd(States),
-                               {DispTuple, extend(1, list_to_tuple(States), DispTuple, X, Y, Z, X, Y, Z)}
-                       end,
-    {{Idx, self(), S, T0, Packed, bounds(Extents, R)}, {States, Disps, Extents, R}, Packed}.
+    Packed = rw_states:seal(Bin, M#model.rotation, M#model.ccd),
+    Extents = case M#model.ccd of
+                  false -> rw_states:extents(Packed);
+                  true ->
+                      {X, Y, Z} = rw_states:position(Packed, 1),
+                      extend(1, rw_states:count(Packed), Packed, X, Y, Z, X, Y, Z)
+              end,
+    {{Idx, self(), S, T0, Packed, bounds(Extents, R)}, {Packed, Extents, R}, Packed}.
 
 %% Probe the buckets of the plan in order under their locks, store the
 %% states up to the first LVT with contacts (or Last), and unlock:
@@ -646,15 +654,15 @@ bounds({X0, Y0, Z0, X1, Y1, Z1}, R) ->
     Pad = R + 1.0e-9 * (R + lists:max([abs(X0), abs(Y0), abs(Z0), abs(X1), abs(Y1), abs(Z1)])),
     {X0 - Pad, Y0 - Pad, Z0 - Pad, X1 + Pad, Y1 + Pad, Z1 + Pad}.
 
-%% The extents of the positions, swept over each substep (CCD: Disps holds
-%% the displacements).
-extend(I, Sts, _Disps, X0, Y0, Z0, X1, Y1, Z1) when I > tuple_size(Sts) -> {X0, Y0, Z0, X1, Y1, Z1};
-extend(I, Sts, Disps, X0, Y0, Z0, X1, Y1, Z1) ->
-    #st{p = {X, Y, Z}} = element(I, Sts),
-    {DX, DY, DZ} = element(I, Disps),
+%% The extents of the positions, swept over each substep (CCD: the packed
+%% states hold the displacements).
+extend(I, N, _Packed, X0, Y0, Z0, X1, Y1, Z1) when I > N -> {X0, Y0, Z0, X1, Y1, Z1};
+extend(I, N, Packed, X0, Y0, Z0, X1, Y1, Z1) ->
+    {X, Y, Z} = rw_states:position(Packed, I),
+    {DX, DY, DZ} = rw_states:displacement(Packed, I),
     {Xa, Ya, Za} = {min(X, X + DX), min(Y, Y + DY), min(Z, Z + DZ)},
     {Xb, Yb, Zb} = {max(X, X + DX), max(Y, Y + DY), max(Z, Z + DZ)},
-    extend(I + 1, Sts, Disps, min(X0, Xa), min(Y0, Ya), min(Z0, Za), max(X1, Xb), max(Y1, Yb), max(Z1, Zb)).
+    extend(I + 1, N, Packed, min(X0, Xa), min(Y0, Ya), min(Z0, Za), max(X1, Xb), max(Y1, Yb), max(Z1, Zb)).
 
 %% For each cell a member's box (swept with CCD) touches during the step,
 %% the first and last substep at which it does. The box around all of the
@@ -666,26 +674,26 @@ extend(I, Sts, Disps, X0, Y0, Z0, X1, Y1, Z1) ->
 %% wider span adds candidates, never contacts). Otherwise (a fast body)
 %% cells are enumerated only when the box changes, and a box is hashed
 %% again only when it leaves the region that keeps its cells.
-cell_spans(T0, {[St0 | Rest], Disps, {X0, Y0, Z0, X1, Y1, Z1}, R},
-           #d{sim = #sim{scene = #scene{cell_size = C}}, dt = Dt}) ->
-    Box = rw_hash:box(aabb(St0, disp_at(Disps, 1), R), C),
+cell_spans(T0, {Packed, {X0, Y0, Z0, X1, Y1, Z1}, R}, #d{sim = #sim{scene = #scene{cell_size = C}}, dt = Dt}) ->
+    Box = rw_hash:box(aabb(Packed, 1, R), C),
     All = rw_hash:box({{X0 - R, Y0 - R, Z0 - R}, {X1 + R, Y1 + R, Z1 + R}}, C),
+    N = rw_states:count(Packed),
     case All =:= Box orelse rw_hash:box_size(All) =< 2 * rw_hash:box_size(Box) of
-        true -> add_run(All, T0, T0 + length(Rest) * Dt, #{});
-        false -> spans(Rest, 2, T0 + Dt, Disps, Box, rw_hash:region(Box, C), T0, T0, {C, R, Dt}, #{})
+        true -> add_run(All, T0, T0 + (N - 1) * Dt, #{});
+        false -> spans(2, N, Packed, T0 + Dt, Box, rw_hash:region(Box, C), T0, T0, {C, R, Dt}, #{})
     end.
 
-%% State I of the step (at substep T) and the rest.
-spans([], _I, _T, _Disps, Box, _Region, Ta, Tb, _CRDt, Acc) ->
+%% State I of N of the step (at substep T) and the rest.
+spans(I, N, _Packed, _T, Box, _Region, Ta, Tb, _CRDt, Acc) when I > N ->
     add_run(Box, Ta, Tb, Acc);
-spans([St | Rest], I, T, Disps, Box, Region, Ta, Tb, {C, R, Dt} = CRDt, Acc) ->
-    AABB = aabb(St, disp_at(Disps, I), R),
+spans(I, N, Packed, T, Box, Region, Ta, Tb, {C, R, Dt} = CRDt, Acc) ->
+    AABB = aabb(Packed, I, R),
     case rw_hash:in_region(AABB, Region) of
-        true -> spans(Rest, I + 1, T + Dt, Disps, Box, Region, Ta, T, CRDt, Acc);
+        true -> spans(I + 1, N, Packed, T + Dt, Box, Region, Ta, T, CRDt, Acc);
         false ->
             case rw_hash:box(AABB, C) of
-                Box -> spans(Rest, I + 1, T + Dt, Disps, Box, Region, Ta, T, CRDt, Acc);
-                New -> spans(Rest, I + 1, T + Dt, Disps, New, rw_hash:region(New, C), T, T, CRDt,
+                Box -> spans(I + 1, N, Packed, T + Dt, Box, Region, Ta, T, CRDt, Acc);
+                New -> spans(I + 1, N, Packed, T + Dt, New, rw_hash:region(New, C), T, T, CRDt,
                              add_run(Box, Ta, Tb, Acc))
             end
     end.
@@ -697,11 +705,12 @@ add_run(Box, Ta, Tb, Acc) ->
                              end
                 end, Acc, rw_hash:box_cells(Box)).
 
-disp_at(undefined, _) -> undefined;
-disp_at(Disps, I) -> element(I, Disps).
-
-aabb(#st{p = P}, undefined, R) -> rw_shape:sphere_aabb(P, R);
-aabb(#st{p = P}, Disp, R) -> rw_shape:swept_aabb(P, Disp, R).
+%% The box around state I of a step (swept over its substep with CCD).
+aabb(Packed, I, R) ->
+    case rw_states:displacement(Packed, I) of
+        undefined -> rw_shape:sphere_aabb(rw_states:position(Packed, I), R);
+        Disp -> rw_shape:swept_aabb(rw_states:position(Packed, I), Disp, R)
+    end.
 
 %% The members' cell spans (Idx and Cell => {Ta, Tb}) by cell and bucket,
 %% in bucket order (the lock order): [{BucketIndex, Pid, Cells, Spans}]

@@ -12,7 +12,7 @@
 %% skip substeps at which two bodies are too far apart to touch.
 -module(rw_states).
 -include_lib("rw_physics/include/rw_physics.hrl").
--export([pack/4, count/1, position/2, state/2, displacement/2, extents/1, reach/1, first_touch/6]).
+-export([pack/4, append/4, seal/3, count/1, position/2, state/2, displacement/2, extents/1, reach/1, first_touch/6]).
 -export_type([packed/0, extents/0]).
 
 %% The box of the positions: {X0, Y0, Z0, X1, Y1, Z1}.
@@ -21,40 +21,54 @@
                      extents(), Reach :: float() | undefined}.
 
 %% Pack States (in order) with their free displacements (undefined
-%% without CCD). One pass also measures the extents of the positions and
-%% the reach (see reach/1).
+%% without CCD): append/4 each, then seal/3.
 -spec pack([#st{}], [rw_vec:vec()] | undefined, boolean(), boolean()) -> packed().
-pack([#st{p = {X, Y, Z}} | _] = States, Disps, Rotation, Ccd) ->
+pack(States, Disps, Rotation, Ccd) ->
+    Bin = case Disps of
+              undefined -> lists:foldl(fun(St, B) -> append(B, St, undefined, Rotation) end, <<>>, States);
+              _ -> lists:foldl(fun({St, D}, B) -> append(B, St, D, Rotation) end, <<>>, lists:zip(States, Disps))
+          end,
+    seal(Bin, Rotation, Ccd).
+
+%% One more state (with CCD, and its free displacement) at the end of Bin.
+%% A step's states are appended as they are computed: the binary grows in
+%% place, off the heap, so the states of a long step are never copied by
+%% the garbage collector of the body that computes them.
+-spec append(binary(), #st{}, rw_vec:vec() | undefined, boolean()) -> binary().
+append(Bin, St, undefined, Rotation) -> record(Bin, St, Rotation);
+append(Bin, St, {DX, DY, DZ}, Rotation) ->
+    <<(record(Bin, St, Rotation))/binary, DX:64/float, DY:64/float, DZ:64/float>>.
+
+%% The states appended to Bin (append/4), packed: one pass measures the
+%% extents of the positions and the reach (see reach/1).
+-spec seal(binary(), boolean(), boolean()) -> packed().
+seal(<<X:64/float, Y:64/float, Z:64/float, _/binary>> = Bin, Rotation, Ccd) ->
     Size = 8 * (6 + case Rotation of true -> 7; false -> 0 end + case Ccd of true -> 3; false -> 0 end),
-    {Bin, Extents, Reach} =
-        try pack(States, Disps, Rotation, <<>>, X, Y, Z, X, Y, Z, X, Y, Z, 0.0)
+    {Extents, Reach} =
+        try measure(Size - 24, Bin, X, Y, Z, X, Y, Z, X, Y, Z, 0.0)
         catch
             %% a move between coordinates near the largest double overflows
             %% (far beyond what a scene may hold): no reach, and no skipping
-            error:badarith ->
-                {B, E, _} = pack(States, Disps, Rotation, <<>>, 0.0, 0.0, 0.0, X, Y, Z, X, Y, Z, undefined),
-                {B, E, undefined}
+            error:badarith -> measure(Size - 24, Bin, 0.0, 0.0, 0.0, X, Y, Z, X, Y, Z, undefined)
         end,
     {Size, Rotation, Ccd, Bin, Extents, Reach}.
 
 %% (a hot loop: the comparisons are written out rather than calls to
-%% min/2 and max/2, and the binary is appended to in place)
-pack([], _Disps, _Rot, Bin, _PX, _PY, _PZ, X0, Y0, Z0, X1, Y1, Z1, Reach) ->
-    {Bin, {X0, Y0, Z0, X1, Y1, Z1}, Reach};
-pack([#st{p = {X, Y, Z}} = St | Rest], Disps, Rot, Bin, PX, PY, PZ, X0, Y0, Z0, X1, Y1, Z1, Reach) ->
-    Step = case Reach of
-               undefined -> undefined;
-               _ -> abs(X - PX) + abs(Y - PY) + abs(Z - PZ)
-           end,
-    {Bin1, Disps1} = case Disps of
-                         undefined -> {record(Bin, St, Rot), undefined};
-                         [{DX, DY, DZ} | More] ->
-                             {<<(record(Bin, St, Rot))/binary, DX:64/float, DY:64/float, DZ:64/float>>, More}
-                     end,
-    pack(Rest, Disps1, Rot, Bin1, X, Y, Z,
-         if X < X0 -> X; true -> X0 end, if Y < Y0 -> Y; true -> Y0 end, if Z < Z0 -> Z; true -> Z0 end,
-         if X > X1 -> X; true -> X1 end, if Y > Y1 -> Y; true -> Y1 end, if Z > Z1 -> Z; true -> Z1 end,
-         if Reach =:= undefined -> undefined; Step > Reach -> Step; true -> Reach end).
+%% min/2 and max/2)
+measure(Skip, Bin, PX, PY, PZ, X0, Y0, Z0, X1, Y1, Z1, Reach) ->
+    case Bin of
+        <<X:64/float, Y:64/float, Z:64/float, _:Skip/binary, Rest/binary>> ->
+            Step = case Reach of
+                       undefined -> undefined;
+                       _ -> abs(X - PX) + abs(Y - PY) + abs(Z - PZ)
+                   end,
+            measure(Skip, Rest, X, Y, Z,
+                    if X < X0 -> X; true -> X0 end, if Y < Y0 -> Y; true -> Y0 end, if Z < Z0 -> Z; true -> Z0 end,
+                    if X > X1 -> X; true -> X1 end, if Y > Y1 -> Y; true -> Y1 end, if Z > Z1 -> Z; true -> Z1 end,
+                    if Reach =:= undefined -> undefined; Step > Reach -> Step; true -> Reach end);
+        <<>> ->
+            {{X0, Y0, Z0, X1, Y1, Z1}, Reach}
+    end.
 
 record(Bin, #st{p = {PX, PY, PZ}, v = {VX, VY, VZ}}, false) ->
     <<Bin/binary, PX:64/float, PY:64/float, PZ:64/float, VX:64/float, VY:64/float, VZ:64/float>>;
