@@ -174,20 +174,19 @@ more_complete(C) ->
     end.
 
 advance(#s{gvt = G0} = S) ->
-    #s{gvt = G, sim = #sim{end_t = End} = Sim} = S1 = advance_over(S),
-    case G > G0 of
-        true ->
-            ok = atomics:put(Sim#sim.gvt_now, 1, G),
-            [rw_bucket:gvt(B, G) || B <- tuple_to_list(Sim#sim.buckets)],
-            S2 = S1#s{waiting = wake(G, S1#s.waiting)},
-            ok = case G of
-                     End -> notify(S#s.owner, {rw_done, self(), ms(End, S)});
-                     _ -> ok
-                 end,
-            S2;
-        false ->
-            S1
-    end.
+    #s{gvt = G, sim = #sim{end_t = End}} = S1 = advance_over(S),
+    ok = case G > G0 andalso G =:= End of
+             true -> notify(S#s.owner, {rw_done, self(), ms(End, S)});
+             false -> ok
+         end,
+    S1.
+
+%% GVT is G: tell the bodies (the atomic they read, and a message to those
+%% waiting for it) and the buckets.
+publish(G, #s{sim = Sim, waiting = Waiting} = S) ->
+    ok = atomics:put(Sim#sim.gvt_now, 1, G),
+    [rw_bucket:gvt(B, G) || B <- tuple_to_list(Sim#sim.buckets)],
+    S#s{gvt = G, last_advance = now_ms(), waiting = wake(G, Waiting)}.
 
 advance_over(#s{complete = C, sim = Sim, unready = U} = S) ->
     Next = next_sync(S),
@@ -206,24 +205,30 @@ advance_over(#s{complete = C, sim = Sim, unready = U} = S) ->
             S
     end.
 
-%% GVT passes Next: write the frame, plan the groups, forget its records.
+%% GVT passes Next: plan the groups, publish GVT, write the frame, forget
+%% its records. Every body may be waiting for GVT: what they need to step
+%% on (the plan, whose entities must stop at its regroup point before they
+%% pass it) comes before GVT is published, the rest after.
 pass(Next, #s{sim = #sim{end_t = End} = Sim} = S) ->
-    {Records, S0} = case is_frame(Next, Sim) of
-                        true ->
-                            %% frames leave the engine with their time in ms
-                            Ms = ms(Next, S),
-                            Rs = records_at(Next, Sim),
-                            Frame = {frame, Ms, [R || {_, R} <- Rs]},
-                            write_ring(Ms, Frame, S),
-                            _ = [P ! {rw_frame, self(), Frame} || P <- S#s.subscribers],
-                            {Rs, S#s{frames = S#s.frames + 1}};
-                        false ->
-                            {none, S}
-                    end,
-    S1 = regroup(Next, Records, S0),
+    Frame = is_frame(Next, Sim),
+    Records = case Frame of
+                  true -> records_at(Next, Sim);
+                  false -> none
+              end,
+    S1 = publish(Next, regroup(Next, Records, S)),
+    S2 = case Frame of
+             true ->
+                 %% frames leave the engine with their time in ms
+                 Ms = ms(Next, S),
+                 F = {frame, Ms, [R || {_, R} <- Records]},
+                 write_ring(Ms, F, S1),
+                 _ = [P ! {rw_frame, self(), F} || P <- S1#s.subscribers],
+                 S1#s{frames = S1#s.frames + 1};
+             false ->
+                 S1
+         end,
     ets:select_delete(Sim#sim.records, [{{{Next, '_'}, '_'}, [], [true]}]),
     ets:delete(Sim#sim.counts, Next),
-    S2 = S1#s{gvt = Next, last_advance = now_ms()},
     case Next of
         End -> S2;
         _ -> advance_over(S2)

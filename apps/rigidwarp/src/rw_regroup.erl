@@ -113,28 +113,36 @@ edges(Bodies, Old, Met) ->
 %% closer along x than the largest reach.
 close(Bodies, F) ->
     RMax = lists:max([0.0 | [R || {_, R, _, _} <- Bodies]]),
-    ByX = lists:sort([{X, B} || {_, _, {X, _, _}, _} = B <- Bodies]),
+    ByX = lists:sort([{X, I, R, Y, Z} || {I, R, {X, Y, Z}, _} <- Bodies]),
     sweep(ByX, 2.0 * RMax * F, F, []).
 
 sweep([], _Reach, _F, Acc) -> Acc;
-sweep([{X, A} | Rest], Reach, F, Acc) ->
-    sweep(Rest, Reach, F, near(Rest, X + Reach, Reach, F, A, Acc)).
+sweep([{X, I, R, Y, Z} | Rest], Reach, F, Acc) ->
+    sweep(Rest, Reach, F, near(Rest, X + Reach, Reach, F, I, R, X, Y, Z, Acc)).
 
-%% (most bodies within reach along x are far along y or z: two comparisons
-%% reject them before any distance is computed)
-near([{XB, B} | Rest], XMax, Reach, F, {IA, RA, {_, YA, ZA} = PA, _} = A, Acc) when XB < XMax ->
-    case B of
-        {_, _, {_, YB, ZB}, _} when abs(YB - YA) >= Reach; abs(ZB - ZA) >= Reach ->
-            near(Rest, XMax, Reach, F, A, Acc);
-        {IB, RB, PB, _} ->
+%% (a hot loop of the GVT process, which every body waits for at each
+%% frame: coordinates are flat and typed so that the arithmetic stays in
+%% float registers; most bodies within reach along x are far along y or z,
+%% and two comparisons reject them before any distance is computed)
+near([{XB, IB, RB, YB, ZB} | Rest], XMax, Reach, F, IA, RA, XA, YA, ZA, Acc)
+  when XB < XMax, is_float(XB), is_float(YB), is_float(ZB), is_float(XA), is_float(YA), is_float(ZA),
+       is_float(Reach), is_float(RA), is_float(RB), is_float(F) ->
+    DY = YB - YA,
+    DZ = ZB - ZA,
+    case DY >= Reach orelse -DY >= Reach orelse DZ >= Reach orelse -DZ >= Reach of
+        true ->
+            near(Rest, XMax, Reach, F, IA, RA, XA, YA, ZA, Acc);
+        false ->
             Sum = RA + RB,
-            Dist = rw_vec:len(rw_vec:sub(PB, PA)),
+            DX = XB - XA,
+            %% (rw_vec:len/1 of the difference, operation for operation)
+            Dist = math:sqrt(DX * DX + DY * DY + DZ * DZ),
             case Dist < F * Sum of
-                true -> near(Rest, XMax, Reach, F, A, [{{min(IA, IB), max(IA, IB)}, Dist, Sum} | Acc]);
-                false -> near(Rest, XMax, Reach, F, A, Acc)
+                true -> near(Rest, XMax, Reach, F, IA, RA, XA, YA, ZA, [{{min(IA, IB), max(IA, IB)}, Dist, Sum} | Acc]);
+                false -> near(Rest, XMax, Reach, F, IA, RA, XA, YA, ZA, Acc)
             end
     end;
-near(_, _XMax, _Reach, _F, _A, Acc) -> Acc.
+near(_, _XMax, _Reach, _F, _IA, _RA, _XA, _YA, _ZA, Acc) -> Acc.
 
 %% Union-find over idx => {Parent, Size} (the smaller tree goes under the
 %% larger); a union that would make a group larger than Max is skipped.
