@@ -184,7 +184,7 @@ members(Spheres0, #d{model = M, fixtures = Fixtures} = D) ->
 -spec ready(gen_statem:event_type(), term(), #d{}) -> gen_statem:event_handler_result(atom()).
 ready(info, go, #d{start = St0} = D) ->
     %% the initial state is written like any other, at LVT 0
-    settle(write_states(0, [add(<<>>, St, D) || St <- tuple_to_list(St0)], 0, D#d{lvt = 0, start = undefined}));
+    settle(write_states(0, [pack([St], D) || St <- tuple_to_list(St0)], 0, D#d{lvt = 0, start = undefined}));
 ready(info, {delay, Seed, MaxMs}, D) ->
     _ = rand:seed(exsss, Seed),
     {keep_state, D#d{delay = MaxMs}};
@@ -508,15 +508,24 @@ timed(Stats, Stage, Fun) ->
     counters:add(Stats, Stage, reductions() - T0),
     Result.
 
-%% The members' states after T up to Last (one binary per member of its
-%% states appended one per substep, rw_states:append/4), the post-response
-%% velocities at each sync point passed on the way (to commit), and the
-%% island with its neighbour list.
+%% The members' states after T up to Last (per member, rw_states:packed()
+%% of one state per substep), the post-response velocities at each sync
+%% point passed on the way (to commit), and the island with its neighbour
+%% list. A body alone keeps its states in a list and packs them at the end
+%% (a step of at most a stride); a group appends each member's states to a
+%% binary as it computes them, so that the up to ?WRITE_BUDGET states of a
+%% long step are never on the heap for the garbage collector to copy.
 chain(T, {St}, Last, #d{spheres = {_}} = D, Island0) ->
-    {Passed, Bin, Island} = alone(T, St, Last, D, Island0, [], <<>>),
-    {Passed, [Bin], Island};
-chain(T, States, Last, D, Island0) ->
-    chain(T, States, Last, D, Island0, [], [<<>> || _ <- tuple_to_list(States)]).
+    {Passed, States, Island} = alone(T, St, Last, D, Island0, [], []),
+    {Passed, [pack(States, D)], Island};
+chain(T, States, Last, #d{model = #model{rotation = Rot, ccd = Ccd}} = D, Island0) ->
+    {Passed, Bins, Island} = chain(T, States, Last, D, Island0, [], [<<>> || _ <- tuple_to_list(States)]),
+    {Passed, [rw_states:seal(Bin, Rot, Ccd) || Bin <- Bins], Island}.
+
+%% States packed (with CCD, with their free displacements).
+pack(States, #d{model = #model{rotation = Rot, ccd = false}}) -> rw_states:pack(States, undefined, Rot, false);
+pack(States, #d{model = #model{rotation = Rot} = M}) ->
+    rw_states:pack(States, [rw_integrate:free_displacement(M, St) || St <- States], Rot, true).
 
 %% The number of substeps from T to Last.
 steps(T, Last, #d{dt = Dt}) -> (Last - T + Dt - 1) div Dt.
@@ -531,9 +540,9 @@ add_all(_K, _States, [], _D) -> [];
 add_all(K, States, [Bin | Bins], D) -> [add(Bin, element(K, States), D) | add_all(K + 1, States, Bins, D)].
 
 %% A body on its own, the hot path of free flight.
-alone(T, _St, Last, _D, Island, Passed, Bin) when T >= Last ->
-    {lists:reverse(Passed), Bin, Island};
-alone(T, St, Last, #d{model = M, dt = Dt} = D, Island0, Passed, Bin) ->
+alone(T, _St, Last, _D, Island, Passed, Acc) when T >= Last ->
+    {lists:reverse(Passed), lists:reverse(Acc), Island};
+alone(T, St, Last, #d{model = M, dt = Dt} = D, Island0, Passed, Acc) ->
     {{V, W, U} = Post, Island} = case D#d.base of
                                      {T, {Base}} -> {Base, Island0};
                                      _ -> rw_island:post(Island0, St, external(T, D))
@@ -543,7 +552,7 @@ alone(T, St, Last, #d{model = M, dt = Dt} = D, Island0, Passed, Bin) ->
                   true -> [{T, {St}, {Post}} | Passed];
                   false -> Passed
               end,
-    alone(T + Dt, Next, Last, D, Island, Passed1, add(Bin, Next, D)).
+    alone(T + Dt, Next, Last, D, Island, Passed1, [Next | Acc]).
 
 chain(T, _States, Last, _D, Island, Passed, Bins) when T >= Last ->
     {lists:reverse(Passed), Bins, Island};
@@ -568,12 +577,11 @@ chain(T, States, Last, #d{model = M, dt = Dt} = D, Island, Passed, Bins) ->
 %% that it cost more than it saved.
 -define(WRITE_BUDGET, 1024).
 
-%% Write Steps (per member, its states from T0 on, one per substep,
-%% appended to a binary) to the TVHT under lock; stop at the first substep
-%% with contacts and send the events for them. LVT becomes that substep, or
-%% Last.
+%% Write Steps (per member, its packed states from T0 on, one per substep)
+%% to the TVHT under lock; stop at the first substep with contacts and send
+%% the events for them. LVT becomes that substep, or Last.
 write_states(T0, Steps, Last, #d{sim = Sim, written = Written} = D) ->
-    Members = [member_write(K, T0, Bin, D) || {K, Bin} <- lists:zip(lists:seq(1, length(Steps)), Steps)],
+    Members = [member_write(K, T0, Packed, D) || {K, Packed} <- lists:zip(lists:seq(1, length(Steps)), Steps)],
     Packed = list_to_tuple([P || {_, _, P} <- Members]),
     Write = {self(), T0, maps:from_list([{Idx, Payload} || {{Idx, _, _, _, _, _} = Payload, _, _} <- Members]),
              union([Bounds || {{_, _, _, _, _, Bounds}, _, _} <- Members])},
@@ -593,9 +601,8 @@ write_states(T0, Steps, Last, #d{sim = Sim, written = Written} = D) ->
 
 %% One member's part of a write: its payload for the buckets, what
 %% cell_spans/3 needs, and its packed states.
-member_write(K, T0, Bin, #d{spheres = Spheres, model = M}) ->
+member_write(K, T0, Packed, #d{spheres = Spheres, model = M}) ->
     #sphere{idx = Idx, radius = R} = S = element(K, Spheres),
-    Packed = rw_states:seal(Bin, M#model.rotation, M#model.ccd),
     Extents = case M#model.ccd of
                   false -> rw_states:extents(Packed);
                   true ->

@@ -41,7 +41,10 @@
     leaders = #{} :: rw_regroup:leaders(),              % the groups planned last
     grouped = false :: boolean(),                       % ... and whether any has two bodies or more
     %% regroup points with entities that have not answered {regroup, S} yet
-    unready = #{} :: #{non_neg_integer() => [pid()]}
+    unready = #{} :: #{non_neg_integer() => [pid()]},
+    %% sync points passed since GVT was last published, newest first, with
+    %% the records of each frame time (none otherwise)
+    passed = [] :: [{non_neg_integer(), [{non_neg_integer(), tuple()}] | none}]
 }).
 
 -spec start_link() -> {ok, pid()}.
@@ -173,20 +176,27 @@ more_complete(C) ->
     after 0 -> C
     end.
 
+%% Pass every sync point that is complete, then publish GVT, then write
+%% the frames of the points passed and forget their records: every body
+%% may be waiting for GVT, and what it needs to step on (the regroup plans,
+%% whose entities must stop at their regroup point before they pass it) is
+%% ready before GVT is published, the rest comes after.
 advance(#s{gvt = G0} = S) ->
-    #s{gvt = G, sim = #sim{end_t = End}} = S1 = advance_over(S),
-    ok = case G > G0 andalso G =:= End of
-             true -> notify(S#s.owner, {rw_done, self(), ms(End, S)});
-             false -> ok
-         end,
-    S1.
-
-%% GVT is G: tell the bodies (the atomic they read, and a message to those
-%% waiting for it) and the buckets.
-publish(G, #s{sim = Sim, waiting = Waiting} = S) ->
-    ok = atomics:put(Sim#sim.gvt_now, 1, G),
-    [rw_bucket:gvt(B, G) || B <- tuple_to_list(Sim#sim.buckets)],
-    S#s{gvt = G, last_advance = now_ms(), waiting = wake(G, Waiting)}.
+    #s{gvt = G, sim = #sim{end_t = End} = Sim, passed = Passed} = S1 = advance_over(S),
+    case G > G0 of
+        true ->
+            ok = atomics:put(Sim#sim.gvt_now, 1, G),
+            [rw_bucket:gvt(B, G) || B <- tuple_to_list(Sim#sim.buckets)],
+            S2 = lists:foldl(fun finish/2, S1#s{waiting = wake(G, S1#s.waiting), passed = []},
+                             lists:reverse(Passed)),
+            ok = case G of
+                     End -> notify(S#s.owner, {rw_done, self(), ms(End, S)});
+                     _ -> ok
+                 end,
+            S2;
+        false ->
+            S1
+    end.
 
 advance_over(#s{complete = C, sim = Sim, unready = U} = S) ->
     Next = next_sync(S),
@@ -205,34 +215,37 @@ advance_over(#s{complete = C, sim = Sim, unready = U} = S) ->
             S
     end.
 
-%% GVT passes Next: plan the groups, publish GVT, write the frame, forget
-%% its records. Every body may be waiting for GVT: what they need to step
-%% on (the plan, whose entities must stop at its regroup point before they
-%% pass it) comes before GVT is published, the rest after.
+%% GVT passes Next: plan the groups (advance/1 writes its frame once GVT
+%% is published).
 pass(Next, #s{sim = #sim{end_t = End} = Sim} = S) ->
-    Frame = is_frame(Next, Sim),
-    Records = case Frame of
+    Records = case is_frame(Next, Sim) of
                   true -> records_at(Next, Sim);
                   false -> none
               end,
-    S1 = publish(Next, regroup(Next, Records, S)),
-    S2 = case Frame of
-             true ->
-                 %% frames leave the engine with their time in ms
-                 Ms = ms(Next, S),
-                 F = {frame, Ms, [R || {_, R} <- Records]},
-                 write_ring(Ms, F, S1),
-                 _ = [P ! {rw_frame, self(), F} || P <- S1#s.subscribers],
-                 S1#s{frames = S1#s.frames + 1};
-             false ->
-                 S1
-         end,
-    ets:select_delete(Sim#sim.records, [{{{Next, '_'}, '_'}, [], [true]}]),
-    ets:delete(Sim#sim.counts, Next),
+    S1 = regroup(Next, Records, S),
+    S2 = S1#s{gvt = Next, last_advance = now_ms(), passed = [{Next, Records} | S1#s.passed]},
     case Next of
         End -> S2;
         _ -> advance_over(S2)
     end.
+
+%% A sync point T that GVT has passed: write its frame (Records: none if
+%% it is not a frame time), forget its records.
+finish({T, Records}, #s{sim = Sim} = S) ->
+    S1 = case Records of
+             none ->
+                 S;
+             _ ->
+                 %% frames leave the engine with their time in ms
+                 Ms = ms(T, S),
+                 Frame = {frame, Ms, [R || {_, R} <- Records]},
+                 write_ring(Ms, Frame, S),
+                 _ = [P ! {rw_frame, self(), Frame} || P <- S#s.subscribers],
+                 S#s{frames = S#s.frames + 1}
+         end,
+    ets:select_delete(Sim#sim.records, [{{{T, '_'}, '_'}, [], [true]}]),
+    ets:delete(Sim#sim.counts, T),
+    S1.
 
 %% At a regroup point X, plan the groups at X + period from the states
 %% committed at X (Records, as the frame at X read them, or none: still in

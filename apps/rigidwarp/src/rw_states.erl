@@ -21,14 +21,42 @@
                      extents(), Reach :: float() | undefined}.
 
 %% Pack States (in order) with their free displacements (undefined
-%% without CCD): append/4 each, then seal/3.
+%% without CCD). One pass also measures the extents of the positions and
+%% the reach (see reach/1). (A body alone packs its step's states so, at
+%% write time; a group appends its members' states as it computes them,
+%% append/4, and seals them, seal/3, which reads the positions back.)
 -spec pack([#st{}], [rw_vec:vec()] | undefined, boolean(), boolean()) -> packed().
-pack(States, Disps, Rotation, Ccd) ->
-    Bin = case Disps of
-              undefined -> lists:foldl(fun(St, B) -> append(B, St, undefined, Rotation) end, <<>>, States);
-              _ -> lists:foldl(fun({St, D}, B) -> append(B, St, D, Rotation) end, <<>>, lists:zip(States, Disps))
-          end,
-    seal(Bin, Rotation, Ccd).
+pack([#st{p = {X, Y, Z}} | _] = States, Disps, Rotation, Ccd) ->
+    Size = 8 * (6 + case Rotation of true -> 7; false -> 0 end + case Ccd of true -> 3; false -> 0 end),
+    {Bin, Extents, Reach} =
+        try pack(States, Disps, Rotation, <<>>, X, Y, Z, X, Y, Z, X, Y, Z, 0.0)
+        catch
+            %% a move between coordinates near the largest double overflows
+            %% (far beyond what a scene may hold): no reach, and no skipping
+            error:badarith ->
+                {B, E, _} = pack(States, Disps, Rotation, <<>>, 0.0, 0.0, 0.0, X, Y, Z, X, Y, Z, undefined),
+                {B, E, undefined}
+        end,
+    {Size, Rotation, Ccd, Bin, Extents, Reach}.
+
+%% (a hot loop: the comparisons are written out rather than calls to
+%% min/2 and max/2, and the binary is appended to in place)
+pack([], _Disps, _Rot, Bin, _PX, _PY, _PZ, X0, Y0, Z0, X1, Y1, Z1, Reach) ->
+    {Bin, {X0, Y0, Z0, X1, Y1, Z1}, Reach};
+pack([#st{p = {X, Y, Z}} = St | Rest], Disps, Rot, Bin, PX, PY, PZ, X0, Y0, Z0, X1, Y1, Z1, Reach) ->
+    Step = case Reach of
+               undefined -> undefined;
+               _ -> abs(X - PX) + abs(Y - PY) + abs(Z - PZ)
+           end,
+    {Bin1, Disps1} = case Disps of
+                         undefined -> {record(Bin, St, Rot), undefined};
+                         [{DX, DY, DZ} | More] ->
+                             {<<(record(Bin, St, Rot))/binary, DX:64/float, DY:64/float, DZ:64/float>>, More}
+                     end,
+    pack(Rest, Disps1, Rot, Bin1, X, Y, Z,
+         if X < X0 -> X; true -> X0 end, if Y < Y0 -> Y; true -> Y0 end, if Z < Z0 -> Z; true -> Z0 end,
+         if X > X1 -> X; true -> X1 end, if Y > Y1 -> Y; true -> Y1 end, if Z > Z1 -> Z; true -> Z1 end,
+         if Reach =:= undefined -> undefined; Step > Reach -> Step; true -> Reach end).
 
 %% One more state (with CCD, and its free displacement) at the end of Bin.
 %% A step's states are appended as they are computed: the binary grows in

@@ -12,6 +12,9 @@ pick(K) ->
         _ -> (rand:uniform() - 0.5) * math:pow(10.0, rand:uniform(30) - 15)
     end.
 
+%% Bit for bit the same terms (on OTP 25, =:= takes -0.0 for 0.0).
+same(A, B) -> term_to_binary(A, [{minor_version, 2}]) =:= term_to_binary(B, [{minor_version, 2}]).
+
 state(K, false) -> #st{p = vec(K), v = vec(K + 3)};
 state(K, true) -> #st{p = vec(K), v = vec(K + 3), q = {vec(K + 6), pick(K + 9)}, w = vec(K + 10)}.
 
@@ -23,14 +26,30 @@ round_trip_test_() ->
               Packed = rw_states:pack(States, Disps, Rot, Ccd),
               ?assertEqual(40, rw_states:count(Packed)),
               [begin
-                   %% =:= tells -0.0 from 0.0 and would see any rounding
-                   ?assert(rw_states:state(Packed, I) =:= St),
-                   ?assert(rw_states:position(Packed, I) =:= St#st.p),
-                   ?assert(rw_states:displacement(Packed, I) =:= case Disps of
-                                                                   undefined -> undefined;
-                                                                   _ -> lists:nth(I, Disps)
-                                                               end)
+                   %% same/2 tells -0.0 from 0.0 and would see any rounding
+                   ?assert(same(rw_states:state(Packed, I), St)),
+                   ?assert(same(rw_states:position(Packed, I), St#st.p)),
+                   ?assert(same(rw_states:displacement(Packed, I), case Disps of
+                                                                      undefined -> undefined;
+                                                                      _ -> lists:nth(I, Disps)
+                                                                  end))
                end || {I, St} <- lists:zip(lists:seq(1, 40), States)]
+      end} || Rot <- [false, true], Ccd <- [false, true]].
+
+%% A group appends its states one by one and seals them: the same packed
+%% states, extents and reach, bit for bit, as packing the list.
+append_seal_is_pack_test_() ->
+    [{lists:flatten(io_lib:format("rotation ~p, ccd ~p", [Rot, Ccd])),
+      fun() ->
+              [begin
+                   States = [state(K + Offset, Rot) || K <- lists:seq(1, N)],
+                   Disps = case Ccd of true -> [vec(K + 20) || K <- lists:seq(1, N)]; false -> undefined end,
+                   Appended = lists:foldl(fun({K, St}, B) ->
+                                                  D = case Disps of undefined -> undefined; _ -> lists:nth(K, Disps) end,
+                                                  rw_states:append(B, St, D, Rot)
+                                          end, <<>>, lists:zip(lists:seq(1, N), States)),
+                   ?assert(same(rw_states:seal(Appended, Rot, Ccd), rw_states:pack(States, Disps, Rot, Ccd)))
+               end || N <- [1, 2, 7, 40], Offset <- lists:seq(0, 5)]
       end} || Rot <- [false, true], Ccd <- [false, true]].
 
 %% The point of packing: the states live off the process heap.
@@ -118,7 +137,7 @@ extents_and_reach_test() ->
          Coord = fun(I) -> [element(I, P) || P <- Path] end,
          ?assertEqual({lists:min(Coord(1)), lists:min(Coord(2)), lists:min(Coord(3)),
                        lists:max(Coord(1)), lists:max(Coord(2)), lists:max(Coord(3))}, rw_states:extents(Packed)),
-         [?assert(rw_states:state(Packed, I) =:= St) || {I, St} <- lists:zip(lists:seq(1, 30), Placed)]
+         [?assert(same(rw_states:state(Packed, I), St)) || {I, St} <- lists:zip(lists:seq(1, 30), Placed)]
      end || _ <- lists:seq(1, 50), Rot <- [false, true], Ccd <- [false, true]],
     Still = [#st{p = {1.0, 2.0, 3.0}, v = {0.0, 0.0, 0.0}}],
     ?assertEqual(0.0, rw_states:reach(rw_states:pack(Still ++ Still, undefined, false, false))),
@@ -133,7 +152,8 @@ no_reach_near_the_largest_double_test() ->
     P = rw_states:pack(Far, undefined, false, false),
     ?assertEqual(undefined, rw_states:reach(P)),
     ?assertEqual({-1.7e308, 0.0, 0.0, 1.7e308, 0.0, 0.0}, rw_states:extents(P)),
-    [?assert(rw_states:state(P, I) =:= St) || {I, St} <- lists:zip([1, 2, 3], Far)],
+    [?assert(same(rw_states:state(P, I), St)) || {I, St} <- lists:zip([1, 2, 3], Far)],
+    ?assert(same(rw_states:seal(element(4, P), false, false), P)),
     Q = rw_states:pack(Near, undefined, false, false),
     ?assertEqual(5.0, rw_states:reach(Q)),
     ?assertEqual(0, rw_states:first_touch(Q, 1, Q, 1, 2, 1.0)),
