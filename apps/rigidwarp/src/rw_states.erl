@@ -43,7 +43,9 @@ pack([#st{p = {X, Y, Z}} | _] = States, Disps, Rotation, Ccd) ->
 %% min/2 and max/2, and the binary is appended to in place)
 pack([], _Disps, _Rot, Bin, _PX, _PY, _PZ, X0, Y0, Z0, X1, Y1, Z1, Reach) ->
     {Bin, {X0, Y0, Z0, X1, Y1, Z1}, Reach};
-pack([#st{p = {X, Y, Z}} = St | Rest], Disps, Rot, Bin, PX, PY, PZ, X0, Y0, Z0, X1, Y1, Z1, Reach) ->
+pack([#st{p = {X, Y, Z}} = St | Rest], Disps, Rot, Bin, PX, PY, PZ, X0, Y0, Z0, X1, Y1, Z1, Reach)
+  when is_float(X), is_float(Y), is_float(Z), is_float(PX), is_float(PY), is_float(PZ), is_float(X0), is_float(Y0),
+       is_float(Z0), is_float(X1), is_float(Y1), is_float(Z1) ->
     Step = case Reach of
                undefined -> undefined;
                _ -> abs(X - PX) + abs(Y - PY) + abs(Z - PZ)
