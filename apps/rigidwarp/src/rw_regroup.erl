@@ -47,19 +47,21 @@
 %% many substeps lately (eager: tests).
 -spec plan([body()], leaders(), pos_integer(), pairs() | eager) -> leaders().
 plan(Bodies, Old, Max, Met) ->
-    ByIdx = maps:from_list([{I, B} || {I, _, _, _} = B <- Bodies]),
     %% (a body alone that met nobody stays alone: only the others can have
     %% an edge)
     {Stay, Join} = edges(candidates(Bodies, Old, Met), Old, Met),
-    Uf0 = maps:from_list([{I, {I, 1}} || {I, _, _, _} <- Bodies]),
-    Uf1 = lists:foldl(fun({A, B}, U) -> union(A, B, Max, U) end, Uf0, Stay),
+    %% union-find over the bodies with an edge (any other is its own root)
+    Uf1 = lists:foldl(fun({A, B}, U) -> union(A, B, Max, U) end, #{}, Stay),
     Uf = lists:foldl(fun({_, {A, B}}, U) -> union(A, B, Max, U) end, Uf1, lists:sort(Join)),
     %% every group is named by its lowest idx
     Roots = maps:fold(fun(I, _, Acc) ->
                               {R, _} = find(I, Uf),
                               maps:update_with(R, fun(L) -> min(L, I) end, I, Acc)
-                      end, #{}, ByIdx),
-    maps:map(fun(I, _) -> {R, _} = find(I, Uf), maps:get(R, Roots) end, ByIdx).
+                      end, #{}, Uf),
+    maps:from_list([{I, case Uf of
+                            #{I := _} -> {R, _} = find(I, Uf), maps:get(R, Roots);
+                            _ -> I
+                        end} || {I, _, _, _} <- Bodies]).
 
 %% Who moves at the regroup point: the old leader of every group that
 %% changes sends its members to their new leaders, and the leader of every
@@ -147,9 +149,10 @@ near(_, _XMax, _Reach, _F, _IA, _RA, _XA, _YA, _ZA, Acc) -> Acc.
 %% Union-find over idx => {Parent, Size} (the smaller tree goes under the
 %% larger); a union that would make a group larger than Max is skipped.
 find(I, Uf) ->
-    case maps:get(I, Uf) of
-        {I, Size} -> {I, Size};
-        {P, _} -> find(P, Uf)
+    case Uf of
+        #{I := {I, Size}} -> {I, Size};
+        #{I := {P, _}} -> find(P, Uf);
+        _ -> {I, 1}
     end.
 
 union(A, B, Max, Uf) ->
@@ -157,6 +160,6 @@ union(A, B, Max, Uf) ->
         {{R, _}, {R, _}} -> Uf;
         {{RA, SA}, {RB, SB}} when SA + SB =< Max ->
             {Root, Child} = case SA >= SB of true -> {RA, RB}; false -> {RB, RA} end,
-            Uf#{Root := {Root, SA + SB}, Child := {Root, 0}};
+            Uf#{Root => {Root, SA + SB}, Child => {Root, 0}};
         _ -> Uf
     end.
