@@ -493,7 +493,7 @@ publish_lvt(#d{sim = #sim{lvts = Lvts}, idx = Idx, idxs = Idxs, lvt = Lvt, watch
 
 advance(Lvt, Last, #d{spheres = Spheres, island = Island0} = D) ->
     {Passed, Steps, Island} = ?TIMED(D, ?ST_RED_INTEGRATE, chain(Lvt, state_at(Lvt, D), Last, D, Island0)),
-    counters:add(D#d.sim#sim.stats, ?ST_COMPUTED, steps(Lvt, Last, D) * tuple_size(Spheres)),
+    counters:add(D#d.sim#sim.stats, ?ST_COMPUTED, rw_states:count(hd(Steps)) * tuple_size(Spheres)),
     counters:add(D#d.sim#sim.stats, ?ST_STEPS, 1),
     D1 = write_states(Lvt + D#d.dt, Steps, Last, D#d{island = Island}),
     %% commit every frame time this step moved past
@@ -524,16 +524,15 @@ chain(T, States, Last, #d{model = #model{rotation = Rot, ccd = Ccd}} = D, Island
 
 %% States packed (with CCD, with their free displacements).
 pack(States, #d{model = #model{rotation = Rot, ccd = false}}) -> rw_states:pack(States, undefined, Rot, false);
-pack(States, #d{model = #model{rotation = Rot} = M}) ->
-    rw_states:pack(States, [rw_integrate:free_displacement(M, St) || St <- States], Rot, true).
-
-%% The number of substeps from T to Last.
-steps(T, Last, #d{dt = Dt}) -> (Last - T + Dt - 1) div Dt.
+pack(States, #d{model = #model{rotation = Rot}} = D) -> rw_states:pack(States, [disp(St, D) || St <- States], Rot, true).
 
 %% Bin with St appended (and with CCD its free displacement).
-add(Bin, St, #d{model = #model{rotation = Rot, ccd = false}}) -> rw_states:append(Bin, St, undefined, Rot);
-add(Bin, St, #d{model = #model{rotation = Rot} = M}) ->
-    rw_states:append(Bin, St, rw_integrate:free_displacement(M, St), Rot).
+add(Bin, St, #d{model = #model{rotation = Rot}} = D) -> rw_states:append(Bin, St, disp(St, D), Rot).
+
+%% What the packed states hold of St's free displacement: with CCD, the
+%% displacement; without, nothing.
+disp(_St, #d{model = #model{ccd = false}}) -> undefined;
+disp(St, #d{model = M}) -> rw_integrate:free_displacement(M, St).
 
 %% Each member's binary with its state in States appended.
 add_all(_K, _States, [], _D) -> [];

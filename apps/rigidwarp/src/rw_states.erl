@@ -27,17 +27,20 @@
 %% append/4, and seals them, seal/3, which reads the positions back.)
 -spec pack([#st{}], [rw_vec:vec()] | undefined, boolean(), boolean()) -> packed().
 pack([#st{p = {X, Y, Z}} | _] = States, Disps, Rotation, Ccd) ->
-    Size = 8 * (6 + case Rotation of true -> 7; false -> 0 end + case Ccd of true -> 3; false -> 0 end),
-    {Bin, Extents, Reach} =
-        try pack(States, Disps, Rotation, <<>>, X, Y, Z, X, Y, Z, X, Y, Z, 0.0)
-        catch
-            %% a move between coordinates near the largest double overflows
-            %% (far beyond what a scene may hold): no reach, and no skipping
-            error:badarith ->
-                {B, E, _} = pack(States, Disps, Rotation, <<>>, 0.0, 0.0, 0.0, X, Y, Z, X, Y, Z, undefined),
-                {B, E, undefined}
-        end,
-    {Size, Rotation, Ccd, Bin, Extents, Reach}.
+    {Bin, Extents, Reach} = with_reach(fun(Reach0) -> pack(States, Disps, Rotation, <<>>, X, Y, Z, X, Y, Z, X, Y, Z,
+                                                           Reach0) end),
+    {record_size(Rotation, Ccd), Rotation, Ccd, Bin, Extents, Reach}.
+
+%% Bytes per state.
+record_size(Rotation, Ccd) -> 8 * (6 + case Rotation of true -> 7; false -> 0 end + case Ccd of true -> 3; false -> 0 end).
+
+%% Measure(0.0), which measures the reach from zero; a move between
+%% coordinates near the largest double overflows (far beyond what a scene
+%% may hold): then Measure(undefined), no reach, and no skipping.
+with_reach(Measure) ->
+    try Measure(0.0)
+    catch error:badarith -> Measure(undefined)
+    end.
 
 %% (a hot loop: the comparisons are written out rather than calls to
 %% min/2 and max/2, and the binary is appended to in place)
@@ -73,16 +76,11 @@ append(Bin, St, {DX, DY, DZ}, Rotation) ->
 %% extents of the positions and the reach (see reach/1).
 -spec seal(binary(), boolean(), boolean()) -> packed().
 seal(<<X:64/float, Y:64/float, Z:64/float, _/binary>> = Bin, Rotation, Ccd) ->
-    Size = 8 * (6 + case Rotation of true -> 7; false -> 0 end + case Ccd of true -> 3; false -> 0 end),
-    {Extents, Reach} =
-        try measure(Size - 24, Bin, X, Y, Z, X, Y, Z, X, Y, Z, 0.0)
-        catch
-            %% a move between coordinates near the largest double overflows
-            %% (far beyond what a scene may hold): no reach, and no skipping
-            error:badarith -> measure(Size - 24, Bin, 0.0, 0.0, 0.0, X, Y, Z, X, Y, Z, undefined)
-        end,
+    Size = record_size(Rotation, Ccd),
+    {Extents, Reach} = with_reach(fun(Reach0) -> measure(Size - 24, Bin, X, Y, Z, X, Y, Z, X, Y, Z, Reach0) end),
     {Size, Rotation, Ccd, Bin, Extents, Reach}.
 
+%% pack/14's measurement over the positions read back from the binary
 %% (a hot loop: the comparisons are written out rather than calls to
 %% min/2 and max/2)
 measure(Skip, Bin, PX, PY, PZ, X0, Y0, Z0, X1, Y1, Z1, Reach) ->
