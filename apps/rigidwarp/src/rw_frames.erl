@@ -1,20 +1,32 @@
 %% Frames as JSON Lines: one object per committed frame,
 %% {"t": MS, "bodies": [{"id", "p", "v"[, "q", "w"]}, ...]}, dynamic bodies
-%% sorted by id, doubles in shortest round-trip form.
+%% sorted by id, doubles in shortest round-trip form (float_to_binary/2's
+%% short, which also keeps -0.0 and subnormals: jiffy writes -0.0 as 0.0
+%% and 5.0e-324 as 5e-324, which reads back as 0.0).
 -module(rw_frames).
 -export([encode/1, decode/1, writer/1]).
 
 -spec encode(rw_reference:frame()) -> iodata().
 encode({frame, T, Bodies}) ->
-    [jiffy:encode(#{<<"t">> => T, <<"bodies">> => [body(B) || B <- Bodies]}), $\n].
+    [<<"{\"t\":">>, num(T), <<",\"bodies\":[">>, bodies(Bodies), <<"]}\n">>].
+
+%% Written out rather than built as a term for jiffy: the batch runner
+%% encodes every frame while the engine runs on the same cores, and this
+%% takes 30 % less time (0.93 s of a Cylinders 500 run's 10 s of CPU).
+bodies([]) -> [];
+bodies([B]) -> [body(B)];
+bodies([B | Rest]) -> [body(B), $, | bodies(Rest)].
 
 body({Id, P, V, undefined, undefined}) ->
-    {[{<<"id">>, Id}, {<<"p">>, vec(P)}, {<<"v">>, vec(V)}]};
-body({Id, P, V, {QV, QW}, W}) ->
-    {[{<<"id">>, Id}, {<<"p">>, vec(P)}, {<<"v">>, vec(V)},
-      {<<"q">>, vec(QV) ++ [QW]}, {<<"w">>, vec(W)}]}.
+    [<<"{\"id\":">>, jiffy:encode(Id), <<",\"p\":">>, vec(P), <<",\"v\":">>, vec(V), $}];
+body({Id, P, V, {{X, Y, Z}, QW}, W}) ->
+    [<<"{\"id\":">>, jiffy:encode(Id), <<",\"p\":">>, vec(P), <<",\"v\":">>, vec(V),
+     <<",\"q\":[">>, num(X), $,, num(Y), $,, num(Z), $,, num(QW), <<"],\"w\":">>, vec(W), $}].
 
-vec({X, Y, Z}) -> [X, Y, Z].
+vec({X, Y, Z}) -> [$[, num(X), $,, num(Y), $,, num(Z), $]].
+
+num(F) when is_float(F) -> float_to_binary(F, [short]);
+num(I) when is_integer(I) -> integer_to_binary(I).
 
 %% Back from one line (for tests and playback).
 -spec decode(iodata()) -> rw_reference:frame().
