@@ -31,20 +31,24 @@
     subscribers = [] :: [pid()],
     gvt = -1 :: integer(),                   % last frame time written
     complete = #{} :: #{non_neg_integer() => true},
-    waiting = gb_sets:empty() :: gb_sets:set({integer(), pid()}),   % {GVT to wake at, body}
+    %% the bodies to wake when GVT reaches each time, ascending (a few
+    %% distinct times, each with up to every body: a set of {At, Pid} cost
+    %% the GVT process a third of its time on Parallel 500)
+    waiting = [] :: [{integer(), [pid()]}],
     last_advance :: integer() | undefined,
     watchdog_ms = 10000 :: pos_integer(),
     ring_size = 1024 :: pos_integer(),
     frames = 0 :: non_neg_integer(),
     pids = #{} :: #{non_neg_integer() => pid()},        % body idx => process
     radii = #{} :: #{non_neg_integer() => float()},
+    idxs = [] :: [non_neg_integer()],                   % every body's idx, ascending
     leaders = #{} :: rw_regroup:leaders(),              % the groups planned last
     grouped = false :: boolean(),                       % ... and whether any has two bodies or more
     %% regroup points with entities that have not answered {regroup, S} yet
     unready = #{} :: #{non_neg_integer() => [pid()]},
     %% sync points passed since GVT was last published, newest first, with
-    %% the records of each frame time (none otherwise)
-    passed = [] :: [{non_neg_integer(), [{non_neg_integer(), tuple()}] | none}]
+    %% the records of each frame time in idx order (none otherwise)
+    passed = [] :: [{non_neg_integer(), [tuple()] | none}]
 }).
 
 -spec start_link() -> {ok, pid()}.
@@ -102,6 +106,7 @@ handle_call({go, #sim{scene = #scene{spheres = Spheres}} = Sim, Bodies, Opts}, _
                     watchdog_ms = Watchdog, ring_size = maps:get(ring_size, Opts, 1024),
                     last_advance = now_ms(), pids = maps:from_list(lists:zip(Idxs, Bodies)),
                     radii = maps:from_list([{I, R} || #sphere{idx = I, radius = R} <- Spheres]),
+                    idxs = lists:sort(Idxs),
                     leaders = maps:from_list([{I, I} || I <- Idxs])}};
 handle_call({subscribe, Pid}, _From, #s{subscribers = Subs} = S) ->
     {reply, ok, S#s{subscribers = [Pid | Subs]}};
@@ -131,7 +136,7 @@ handle_info({wake_at, Pid, At}, #s{gvt = G} = S) when At =< G ->
     Pid ! {gvt, G},
     {noreply, S};
 handle_info({wake_at, Pid, At}, #s{waiting = W} = S) ->
-    {noreply, S#s{waiting = gb_sets:add({At, Pid}, W)}};
+    {noreply, S#s{waiting = add_waiting(At, Pid, W)}};
 handle_info(watchdog, #s{gvt = End, sim = #sim{end_t = End}} = S) ->
     {noreply, S};
 handle_info(watchdog, #s{last_advance = Last, watchdog_ms = W} = S) ->
@@ -238,7 +243,7 @@ finish({T, Records}, #s{sim = Sim} = S) ->
              _ ->
                  %% frames leave the engine with their time in ms
                  Ms = ms(T, S),
-                 Frame = {frame, Ms, [R || {_, R} <- Records]},
+                 Frame = {frame, Ms, Records},
                  write_ring(Ms, Frame, S),
                  _ = [P ! {rw_frame, self(), Frame} || P <- S#s.subscribers],
                  S#s{frames = S#s.frames + 1}
@@ -279,22 +284,22 @@ regroup(X, Records, #s{sim = #sim{period = P, group_max = Max, grouping = Mode, 
 
 %% Every body's committed state at sync point X: {Idx, Radius, P, V}.
 committed(X, none, #s{sim = Sim} = S) -> committed(X, records_at(X, Sim), S);
-committed(_X, Records, #s{radii = Radii}) ->
-    [{I, maps:get(I, Radii), Pos, V} || {I, {_, Pos, V, _, _}} <- Records].
+committed(_X, Records, #s{radii = Radii, idxs = Idxs}) ->
+    [{I, maps:get(I, Radii), Pos, V} || {I, {_, Pos, V, _, _}} <- lists:zip(Idxs, Records)].
 
-%% The records committed at sync point T, {Idx, Record}, in idx order (the
-%% table is ordered by {T, Idx}).
-records_at(T, #sim{records = Records}) -> ets:select(Records, [{{{T, '$1'}, '$2'}, [], [{{'$1', '$2'}}]}]).
+%% The records committed at sync point T, one per body (GVT passes T only
+%% once every body has committed it), in idx order: the table is ordered
+%% by {T, Idx}.
+records_at(T, #sim{records = Records}) -> ets:select(Records, [{{{T, '_'}, '$1'}, [], ['$1']}]).
 
-wake(G, Waiting) ->
-    case gb_sets:is_empty(Waiting) of
-        true -> Waiting;
-        false ->
-            case gb_sets:take_smallest(Waiting) of
-                {{At, Pid}, Rest} when At =< G -> Pid ! {gvt, G}, wake(G, Rest);
-                _ -> Waiting
-            end
-    end.
+add_waiting(At, Pid, [{A, _} = First | Rest]) when A < At -> [First | add_waiting(At, Pid, Rest)];
+add_waiting(At, Pid, [{At, Pids} | Rest]) -> [{At, [Pid | Pids]} | Rest];
+add_waiting(At, Pid, Later) -> [{At, [Pid]} | Later].
+
+wake(G, [{At, Pids} | Rest]) when At =< G ->
+    _ = [Pid ! {gvt, G} || Pid <- Pids],
+    wake(G, Rest);
+wake(_G, Waiting) -> Waiting.
 
 write_ring(T, Frame, #s{sim = Sim, ring_size = Size, frames = K}) ->
     Ring = Sim#sim.ring,
