@@ -107,7 +107,8 @@ handle_call({go, #sim{scene = #scene{spheres = Spheres}} = Sim, Bodies, Opts}, _
     %% sized to what survived the last collection fills with them at once:
     %% with room for the records of about 40 frames, this process was
     %% scheduled in 27 % less of a Cylinders 500 run (0.7 s, not 1.0 s).
-    _ = process_flag(min_heap_size, 2048 * length(Idxs)),
+    %% (at most 2M words, 16 MiB: 4M made Cylinders 500 slower than 1M)
+    _ = process_flag(min_heap_size, min(2048 * length(Idxs), 1 bsl 21)),
     {reply, ok, S#s{sim = Sim, bodies = Bodies, owner = maps:get(owner, Opts, undefined),
                     watchdog_ms = Watchdog, ring_size = maps:get(ring_size, Opts, 1024),
                     last_advance = now_ms(), pids = maps:from_list(lists:zip(Idxs, Bodies)),
