@@ -54,12 +54,8 @@ with_schedulers(N, Fun) ->
     Old = erlang:system_flag(schedulers_online, min(N, erlang:system_info(schedulers))),
     try Fun() after erlang:system_flag(schedulers_online, Old) end.
 
-%% Bit for bit: =:= takes -0.0 for 0.0 on OTP 25; the external format
-%% keeps each float's IEEE bits.
-bitwise_equal(A, B) -> term_to_binary(A, [{minor_version, 2}]) =:= term_to_binary(B, [{minor_version, 2}]).
-
 assert_same(Name, Expected, Actual) ->
-    case bitwise_equal(Expected, Actual) of
+    case rw_test_lib:bitwise_equal(Expected, Actual) of
         true -> ok;
         false ->
             Diff = first_diff(Expected, Actual),
@@ -69,7 +65,7 @@ assert_same(Name, Expected, Actual) ->
 
 first_diff(A, Failure) when not is_list(Failure) -> {expected, length(A), frames, got, Failure};
 first_diff([X | A], [Y | B]) ->
-    case bitwise_equal(X, Y) of
+    case rw_test_lib:bitwise_equal(X, Y) of
         true -> first_diff(A, B);
         false -> {expected, X, got, Y}
     end;
@@ -140,7 +136,7 @@ same_as_reference(Scene, Sched, Opts, What) ->
                           {Frames, #{regroups := _}} -> {Frames, regrouped}
                       catch C:E -> {{C, E}, crashed}
                       end,
-    collect(Regrouped, ?WHENFAIL(ct:pal("~s~nfirst diff ~p", [What, first_diff(Ref, Tw)]), bitwise_equal(Ref, Tw))).
+    collect(Regrouped, ?WHENFAIL(ct:pal("~s~nfirst diff ~p", [What, first_diff(Ref, Tw)]), rw_test_lib:bitwise_equal(Ref, Tw))).
 
 stride() -> oneof([1, 2, 8, 64, 256]).
 buckets() -> oneof([1, 3, 16, 64]).

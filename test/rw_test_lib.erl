@@ -1,6 +1,12 @@
-%% Helpers shared by the common_test suites in test/.
+%% Helpers shared by the common_test suites in test/ (and by the apps'
+%% EUnit tests: rebar3 compiles test/ for both).
 -module(rw_test_lib).
--export([root/0, scenario/1, escript/0, run_escript/1]).
+-export([root/0, scenario/1, escript/0, run_escript/1, bitwise_equal/2]).
+
+%% Bit for bit the same terms: =:= takes -0.0 for 0.0 on OTP 25; the
+%% external format keeps each float's IEEE bits.
+-spec bitwise_equal(term(), term()) -> boolean().
+bitwise_equal(A, B) -> term_to_binary(A, [{minor_version, 2}]) =:= term_to_binary(B, [{minor_version, 2}]).
 
 %% The repository root: the first directory above this file holding
 %% rebar.config (suites run with the ct log directory as cwd).

@@ -23,7 +23,7 @@ frame(T, N) ->
                 end || K <- lists:seq(1, N)]}.
 
 %% Bit for bit the same terms (on OTP 25, =:= takes -0.0 for 0.0).
-same(A, B) -> term_to_binary(A, [{minor_version, 2}]) =:= term_to_binary(B, [{minor_version, 2}]).
+same(A, B) -> rw_test_lib:bitwise_equal(A, B).
 
 %% Every double comes back bit for bit, and a generic JSON decoder (jiffy)
 %% reads a line as the object the format describes. (jiffy's own encoder
