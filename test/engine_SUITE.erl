@@ -10,7 +10,8 @@
 -export([all/0, groups/0, suite/0, init_per_suite/1, end_per_suite/1]).
 -export([scenarios_equal/1, strides_and_buckets_equal/1, random_scenes_equal/1,
          random_delays_terminate_and_equal/1, watchdog_names_stuck_body/1,
-         no_leaks_after_100_runs/1, escript_frames_identical/1, frames_api/1, contact_groups/1]).
+         no_leaks_after_100_runs/1, escript_frames_identical/1, frames_api/1, frame_times_only/1,
+         contact_groups/1]).
 
 suite() -> [{timetrap, {minutes, 15}}].
 
@@ -20,7 +21,7 @@ groups() ->
     [{equality, [], [scenarios_equal, strides_and_buckets_equal, random_scenes_equal,
                      escript_frames_identical, contact_groups]},
      {liveness, [], [random_delays_terminate_and_equal, watchdog_names_stuck_body]},
-     {lifecycle, [], [no_leaks_after_100_runs, frames_api]}].
+     {lifecycle, [], [no_leaks_after_100_runs, frames_api, frame_times_only]}].
 
 init_per_suite(Config) ->
     {ok, _} = application:ensure_all_started(rigidwarp),
@@ -293,3 +294,26 @@ frames_api(_Config) ->
     ?assertMatch(#{gvt := 20, end_ms := 20, max_lvt := 20}, rigidwarp:stats(Fine)),
     ok = rigidwarp:stop(Fine),
     ok.
+
+%% Without on_frame the frames stay in the engine: the runner hears only
+%% their times (for on_progress and the count), in order, one per frame.
+frame_times_only(_Config) ->
+    File = rw_test_lib:scenario("head_on_elastic.json"),
+    {ok, Scene} = rigidwarp:load(File, #{until => 200}),
+    {Frames, #{frames := N}} = frames(timewarp, Scene, #{}),
+    ?assertEqual(length(Frames), N),
+    Self = self(),
+    {ok, #{frames := N}} = rw_timewarp:run(Scene, #{on_progress => fun(#{gvt := G}) -> Self ! {progress, G} end}),
+    Times = [T || {frame, T, _} <- Frames],
+    ?assertEqual(Times, receive_all(progress)),
+    {ok, H} = rw_timewarp:start(Scene, #{owner => self(), subscribe => times}),
+    #{gvt := Gvt} = H,
+    receive {rw_done, Gvt, 200} -> ok after 10000 -> ct:fail(not_done) end,
+    rw_timewarp:stop(H),
+    ?assertEqual(Times, receive_all(rw_frame_time)),
+    ?assertEqual([], receive_all(rw_frame)),
+    ok.
+
+receive_all(progress) -> receive {progress, G} -> [G | receive_all(progress)] after 0 -> [] end;
+receive_all(rw_frame_time) -> receive {rw_frame_time, _, T} -> [T | receive_all(rw_frame_time)] after 0 -> [] end;
+receive_all(rw_frame) -> receive {rw_frame, _, F} -> [F | receive_all(rw_frame)] after 0 -> [] end.

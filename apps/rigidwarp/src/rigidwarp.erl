@@ -207,6 +207,8 @@ run_scene(Scene, Opts) ->
             Error
     end.
 
+run_engine(reference, Scene, none, Opts) ->
+    run_engine(reference, Scene, fun(_) -> ok end, Opts);
 run_engine(reference, Scene, Sink, Opts) ->
     End = rw_scene:duration_ms(Scene),
     OnFrame = case maps:find(on_progress, Opts) of
@@ -221,8 +223,10 @@ run_engine(reference, Scene, Sink, Opts) ->
               end,
     rw_reference:run(Scene, #{on_frame => OnFrame});
 run_engine(timewarp, Scene, Sink, Opts) ->
-    with_schedulers(maps:get(schedulers, Opts, undefined),
-                    fun() -> rw_timewarp:run(Scene, (maps:with([on_progress | ?TIMEWARP_KEYS], Opts))#{on_frame => Sink}) end).
+    TwOpts0 = maps:with([on_progress | ?TIMEWARP_KEYS], Opts),
+    %% no sink, no frames out of the engine (only their times)
+    TwOpts = case Sink of none -> TwOpts0; _ -> TwOpts0#{on_frame => Sink} end,
+    with_schedulers(maps:get(schedulers, Opts, undefined), fun() -> rw_timewarp:run(Scene, TwOpts) end).
 
 with_schedulers(undefined, Fun) -> Fun();
 with_schedulers(N, Fun) ->
@@ -236,11 +240,12 @@ describe_failure({crashed, Reason}) ->
 describe_failure(Other) ->
     lists:flatten(io_lib:format("~p", [Other])).
 
+%% Where frames go: a file, on_frame, both, or nowhere (none).
 open_sink(Opts) ->
     User = maps:get(on_frame, Opts, fun(_) -> ok end),
     case maps:find(frames, Opts) of
         error ->
-            {ok, User, fun(_) -> ok end};
+            {ok, case maps:is_key(on_frame, Opts) of true -> User; false -> none end, fun(_) -> ok end};
         {ok, File} ->
             case rw_frames:writer(File) of
                 {ok, Write, Close} ->

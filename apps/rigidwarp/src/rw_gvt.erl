@@ -21,14 +21,14 @@
 -module(rw_gvt).
 -behaviour(gen_server).
 -include("rigidwarp.hrl").
--export([start_link/0, go/4, subscribe/2, latest/1, frame_at/2, frames_after/3, gvt/1, sync_after/2, wake_at/3]).
+-export([start_link/0, go/4, subscribe/2, subscribe/3, latest/1, frame_at/2, frames_after/3, gvt/1, sync_after/2, wake_at/3]).
 -export([init/1, handle_call/3, handle_cast/2, handle_info/2]).
 
 -record(s, {
     sim :: #sim{} | undefined,
     bodies = [] :: [pid()],
     owner :: pid() | undefined,
-    subscribers = [] :: [pid()],
+    subscribers = [] :: [{pid(), frames | times}],
     gvt = -1 :: integer(),                   % last frame time written
     complete = #{} :: #{non_neg_integer() => true},
     %% the bodies to wake when GVT reaches each time, ascending (a few
@@ -60,7 +60,15 @@ go(Gvt, Sim, Bodies, Opts) -> gen_server:call(Gvt, {go, Sim, Bodies, Opts}).
 
 %% Send {rw_frame, Gvt, Frame} to Pid for every frame from now on.
 -spec subscribe(pid(), pid()) -> ok.
-subscribe(Gvt, Pid) -> gen_server:call(Gvt, {subscribe, Pid}).
+subscribe(Gvt, Pid) -> subscribe(Gvt, Pid, frames).
+
+%% As subscribe/2 (frames), or only each frame's time in ms:
+%% {rw_frame_time, Gvt, T}, for a subscriber that counts frames or shows
+%% progress and would only drop the bodies' states (a copy of every
+%% body's record per frame, made by this process, which every body may be
+%% waiting for).
+-spec subscribe(pid(), pid(), frames | times) -> ok.
+subscribe(Gvt, Pid, What) when What =:= frames; What =:= times -> gen_server:call(Gvt, {subscribe, Pid, What}).
 
 %% Send {gvt, G} to Pid once GVT G >= At (at once if it is already).
 -spec wake_at(pid(), pid(), integer()) -> ok.
@@ -115,8 +123,8 @@ handle_call({go, #sim{scene = #scene{spheres = Spheres}} = Sim, Bodies, Opts}, _
                     radii = maps:from_list([{I, R} || #sphere{idx = I, radius = R} <- Spheres]),
                     idxs = lists:sort(Idxs),
                     leaders = maps:from_list([{I, I} || I <- Idxs])}};
-handle_call({subscribe, Pid}, _From, #s{subscribers = Subs} = S) ->
-    {reply, ok, S#s{subscribers = [Pid | Subs]}};
+handle_call({subscribe, Pid, What}, _From, #s{subscribers = Subs} = S) ->
+    {reply, ok, S#s{subscribers = [{Pid, What} | Subs]}};
 handle_call(gvt, _From, #s{gvt = G} = S) ->
     {reply, ms(G, S), S}.
 
@@ -252,7 +260,10 @@ finish({T, Records}, #s{sim = Sim} = S) ->
                  Ms = ms(T, S),
                  Frame = {frame, Ms, Records},
                  write_ring(Ms, Frame, S),
-                 _ = [P ! {rw_frame, self(), Frame} || P <- S#s.subscribers],
+                 _ = [case What of
+                          frames -> P ! {rw_frame, self(), Frame};
+                          times -> P ! {rw_frame_time, self(), Ms}
+                      end || {P, What} <- S#s.subscribers],
                  S#s{frames = S#s.frames + 1}
          end,
     ets:select_delete(Sim#sim.records, [{{{T, '_'}, '_'}, [], [true]}]),

@@ -6,7 +6,9 @@
 -export_type([handle/0, options/0]).
 
 -type handle() :: #{sup := pid(), gvt := pid(), ring := ets:tid(), sim := #sim{}, started := integer()}.
--type options() :: #{buckets => pos_integer(), owner => pid(), subscribe => boolean(),
+-type options() :: #{buckets => pos_integer(), owner => pid(),
+                     %% the owner hears of every frame (true: frames), or of its time only
+                     subscribe => boolean() | frames | times,
                      groups => boolean(), group_max => pos_integer(),
                      %% (tests) regroup points this many strides apart, groups of
                      %% all bodies near each other however they move
@@ -81,7 +83,10 @@ start(#scene{spheres = Spheres, initial = Initial, duration = End} = Scene, Opts
             end,
             Sim#sim.profile andalso lists:foreach(fun(B) -> rw_bucket:profile(B, Sim#sim.stats) end,
                                                   tuple_to_list(Buckets)),
-            maps:get(subscribe, Opts, false) andalso rw_gvt:subscribe(Gvt, maps:get(owner, Opts, self())),
+            _ = case maps:get(subscribe, Opts, false) of
+                    false -> ok;
+                    What -> rw_gvt:subscribe(Gvt, maps:get(owner, Opts, self()), case What of true -> frames; _ -> What end)
+                end,
             ok = rw_gvt:go(Gvt, Sim, Bodies, Opts),
             [P ! go || P <- Bodies],
             {ok, #{sup => Sup, gvt => Gvt, ring => Ring, sim => Sim,
@@ -136,18 +141,21 @@ progress(#{sim := #sim{lvts = Lvts, end_t = End, scene = Scene}, started := T0} 
     (stats(H))#{gvt => Gvt, end_ms => rw_scene:ms(Scene, End),
                 max_lvt => rw_scene:ms(Scene, Lead), wall_ms => Wall, realtime_factor => max(Gvt, 0) / Wall}.
 
-%% Run to the end, calling on_frame for every committed frame in order.
+%% Run to the end, calling on_frame for every committed frame in order
+%% (without on_frame, the frames stay in the engine: only their times come
+%% here, for on_progress and the count).
 -spec run(#scene{}, options()) -> {ok, map()} | {error, term()}.
 run(Scene, Opts) ->
-    OnFrame0 = maps:get(on_frame, Opts, fun(_) -> ok end),
-    case start(Scene, Opts#{owner => self(), subscribe => true}) of
+    What = case maps:is_key(on_frame, Opts) of true -> frames; false -> times end,
+    case start(Scene, Opts#{owner => self(), subscribe => What}) of
         {ok, #{sup := Sup, gvt := Gvt} = H} ->
-            OnFrame = case maps:find(on_progress, Opts) of
-                          {ok, P} -> fun({frame, T, _} = F) -> OnFrame0(F), P(progress(H, T)) end;
-                          error -> OnFrame0
-                      end,
+            OnFrame = maps:get(on_frame, Opts, fun(_) -> ok end),
+            OnTime = case maps:find(on_progress, Opts) of
+                         {ok, P} -> fun(T) -> P(progress(H, T)) end;
+                         error -> fun(_) -> ok end
+                     end,
             MRef = erlang:monitor(process, Sup),
-            Result = try collect(Gvt, MRef, OnFrame, 0)
+            Result = try collect(Gvt, MRef, OnFrame, OnTime, 0)
                      after
                          erlang:demonitor(MRef, [flush])
                      end,
@@ -162,9 +170,15 @@ run(Scene, Opts) ->
             Error
     end.
 
-collect(Gvt, MRef, OnFrame, N) ->
+collect(Gvt, MRef, OnFrame, OnTime, N) ->
     receive
-        {rw_frame, Gvt, Frame} -> OnFrame(Frame), collect(Gvt, MRef, OnFrame, N + 1);
+        {rw_frame, Gvt, {frame, T, _} = Frame} ->
+            OnFrame(Frame),
+            OnTime(T),
+            collect(Gvt, MRef, OnFrame, OnTime, N + 1);
+        {rw_frame_time, Gvt, T} ->
+            OnTime(T),
+            collect(Gvt, MRef, OnFrame, OnTime, N + 1);
         {rw_done, Gvt, _End} -> {ok, N};
         {rw_stalled, Gvt, G, Report} -> {error, {stalled, G, Report}};
         {'DOWN', MRef, process, _, Reason} -> {error, {crashed, Reason}}
@@ -173,6 +187,7 @@ collect(Gvt, MRef, OnFrame, N) ->
 flush(Gvt) ->
     receive
         {rw_frame, Gvt, _} -> flush(Gvt);
+        {rw_frame_time, Gvt, _} -> flush(Gvt);
         {rw_stalled, Gvt, _, _} -> flush(Gvt)
     after 0 -> ok
     end.
