@@ -10,7 +10,7 @@
 -export([all/0, groups/0, suite/0, init_per_suite/1, end_per_suite/1]).
 -export([scenarios_equal/1, strides_and_buckets_equal/1, random_scenes_equal/1,
          random_delays_terminate_and_equal/1, watchdog_names_stuck_body/1,
-         no_leaks_after_100_runs/1, escript_frames_identical/1, frames_api/1, frame_times_only/1,
+         no_leaks_after_100_runs/1, escript_frames_identical/1, frames_api/1, frame_times_only/1, ring_keeps_last_frames/1,
          contact_groups/1]).
 
 suite() -> [{timetrap, {minutes, 15}}].
@@ -21,7 +21,7 @@ groups() ->
     [{equality, [], [scenarios_equal, strides_and_buckets_equal, random_scenes_equal,
                      escript_frames_identical, contact_groups]},
      {liveness, [], [random_delays_terminate_and_equal, watchdog_names_stuck_body]},
-     {lifecycle, [], [no_leaks_after_100_runs, frames_api, frame_times_only]}].
+     {lifecycle, [], [no_leaks_after_100_runs, frames_api, frame_times_only, ring_keeps_last_frames]}].
 
 init_per_suite(Config) ->
     {ok, _} = application:ensure_all_started(rigidwarp),
@@ -317,3 +317,22 @@ frame_times_only(_Config) ->
 receive_all(progress) -> receive {progress, G} -> [G | receive_all(progress)] after 0 -> [] end;
 receive_all(rw_frame_time) -> receive {rw_frame_time, _, T} -> [T | receive_all(rw_frame_time)] after 0 -> [] end;
 receive_all(rw_frame) -> receive {rw_frame, _, F} -> [F | receive_all(rw_frame)] after 0 -> [] end.
+
+%% The ring keeps the last ring_size frames, read from the records the
+%% bodies committed; the records of older frames are gone (a long run does
+%% not keep its history).
+ring_keeps_last_frames(_Config) ->
+    File = rw_test_lib:scenario("head_on_elastic.json"),
+    {ok, Scene} = rigidwarp:load(File, #{until => 200}),
+    {Frames, _} = frames(timewarp, Scene, #{}),
+    {ok, #{sim := #sim{records = Records, n = N}} = H} = rw_timewarp:start(Scene, #{owner => self(), ring_size => 4}),
+    #{gvt := Gvt, ring := Ring} = H,
+    receive {rw_done, Gvt, 200} -> ok after 10000 -> ct:fail(not_done) end,
+    Last4 = lists:nthtail(length(Frames) - 4, Frames),
+    ?assertEqual(Last4, rw_gvt:frames_after(Ring, -1, 10)),
+    ?assertEqual(lists:last(Frames), rw_gvt:latest(Ring)),
+    {frame, Evicted, _} = lists:nth(length(Frames) - 4, Frames),
+    ?assertEqual(none, rw_gvt:frame_at(Ring, Evicted)),
+    ?assertEqual(4 * N, ets:info(Records, size)),
+    rw_timewarp:stop(H),
+    ok.

@@ -1,9 +1,13 @@
 %% The GVT counter of one simulation. Bodies commit their state at every
 %% frame time they move past (rw_body: an ETS record plus a shared counter)
 %% and withdraw it when they roll back; the body whose commit completes a
-%% frame time tells this process. Frames complete in time order: each is
-%% written to the ETS ring, GVT advances to it, and bodies and buckets drop
+%% frame time tells this process. Frames complete in time order: GVT
+%% advances to each, it enters the ETS ring, and bodies and buckets drop
 %% their history before it (which raises every LVT_ub to GVT + stride).
+%% The ring names the frame times it holds; their records stay where the
+%% bodies committed them until the frame leaves the ring, and readers
+%% select them from there (a copy out of the records table and one into
+%% the ring took this process a third of its time on Parallel 500).
 %% GVT is published in an atomic that bodies read when they step; only a
 %% body that cannot step until GVT reaches some time asks to be woken then
 %% (wake_at/3), so an advance costs a message per waiting body, not one
@@ -46,9 +50,8 @@
     grouped = false :: boolean(),                       % ... and whether any has two bodies or more
     %% regroup points with entities that have not answered {regroup, S} yet
     unready = #{} :: #{non_neg_integer() => [pid()]},
-    %% sync points passed since GVT was last published, newest first, with
-    %% the records of each frame time in idx order (none otherwise)
-    passed = [] :: [{non_neg_integer(), [tuple()] | none}]
+    %% sync points passed since GVT was last published, newest first
+    passed = [] :: [non_neg_integer()]
 }).
 
 -spec start_link() -> {ok, pid()}.
@@ -81,7 +84,8 @@ wake_at(Gvt, Pid, At) ->
 gvt(Gvt) -> gen_server:call(Gvt, gvt).
 
 %% Frames are read from the ring directly, without the GVT process. The
-%% ring holds them by time in ms, an integer when whole (rw_scene:whole_ms/1).
+%% ring holds their times in ms, an integer when whole (rw_scene:whole_ms/1),
+%% each with its tick, and where the records are: {source, Records, N}.
 -spec latest(ets:tid()) -> rw_reference:frame() | none.
 latest(Ring) ->
     case ets:lookup(Ring, latest) of
@@ -91,8 +95,16 @@ latest(Ring) ->
 
 -spec frame_at(ets:tid(), number()) -> rw_reference:frame() | none.
 frame_at(Ring, T) ->
-    case ets:lookup(Ring, {t, rw_scene:whole_ms(T)}) of
-        [{_, Frame}] -> Frame;
+    Ms = rw_scene:whole_ms(T),
+    case ets:lookup(Ring, {t, Ms}) of
+        [{_, Tick}] ->
+            [{source, Records, N}] = ets:lookup(Ring, source),
+            Bodies = select_at(Tick, Records),
+            %% a frame leaving the ring while it was read is gone
+            case length(Bodies) of
+                N -> {frame, Ms, Bodies};
+                _ -> none
+            end;
         [] -> none
     end.
 
@@ -117,6 +129,7 @@ handle_call({go, #sim{scene = #scene{spheres = Spheres}} = Sim, Bodies, Opts}, _
     %% scheduled in 27 % less of a Cylinders 500 run (0.7 s, not 1.0 s).
     %% (at most 2M words, 16 MiB: 4M made Cylinders 500 slower than 1M)
     _ = process_flag(min_heap_size, min(2048 * length(Idxs), 1 bsl 21)),
+    true = ets:insert(Sim#sim.ring, {source, Sim#sim.records, length(Idxs)}),
     {reply, ok, S#s{sim = Sim, bodies = Bodies, owner = maps:get(owner, Opts, undefined),
                     watchdog_ms = Watchdog, ring_size = maps:get(ring_size, Opts, 1024),
                     last_advance = now_ms(), pids = maps:from_list(lists:zip(Idxs, Bodies)),
@@ -237,47 +250,49 @@ advance_over(#s{complete = C, sim = Sim, unready = U} = S) ->
 
 %% GVT passes Next: plan the groups (advance/1 writes its frame once GVT
 %% is published).
-pass(Next, #s{sim = #sim{end_t = End} = Sim} = S) ->
-    Records = case is_frame(Next, Sim) of
-                  true -> records_at(Next, Sim);
-                  false -> none
-              end,
-    S1 = regroup(Next, Records, S),
-    S2 = S1#s{gvt = Next, last_advance = now_ms(), passed = [{Next, Records} | S1#s.passed]},
+pass(Next, #s{sim = #sim{end_t = End}} = S) ->
+    S1 = regroup(Next, S),
+    S2 = S1#s{gvt = Next, last_advance = now_ms(), passed = [Next | S1#s.passed]},
     case Next of
         End -> S2;
         _ -> advance_over(S2)
     end.
 
-%% A sync point T that GVT has passed: write its frame (Records: none if
-%% it is not a frame time), forget its records.
-finish({T, Records}, #s{sim = Sim} = S) ->
-    S1 = case Records of
-             none ->
-                 S;
-             _ ->
-                 %% frames leave the engine with their time in ms
-                 Ms = ms(T, S),
-                 Frame = {frame, Ms, Records},
-                 write_ring(Ms, Frame, S),
-                 _ = [case What of
-                          frames -> P ! {rw_frame, self(), Frame};
-                          times -> P ! {rw_frame_time, self(), Ms}
-                      end || {P, What} <- S#s.subscribers],
-                 S#s{frames = S#s.frames + 1}
-         end,
-    ets:select_delete(Sim#sim.records, [{{{T, '_'}, '_'}, [], [true]}]),
+%% A sync point T that GVT has passed: put it in the ring if it is a
+%% frame time (its records stay until it leaves the ring), else forget its
+%% records.
+finish(T, #s{sim = Sim} = S) ->
     ets:delete(Sim#sim.counts, T),
-    S1.
+    case is_frame(T, Sim) of
+        true ->
+            %% frames leave the engine with their time in ms
+            Ms = ms(T, S),
+            write_ring(Ms, T, S),
+            Subs = S#s.subscribers,
+            Frame = case lists:keymember(frames, 2, Subs) of
+                        true -> {frame, Ms, records_at(T, Sim)};
+                        false -> none
+                    end,
+            _ = [case What of
+                     frames -> P ! {rw_frame, self(), Frame};
+                     times -> P ! {rw_frame_time, self(), Ms}
+                 end || {P, What} <- Subs],
+            S#s{frames = S#s.frames + 1};
+        false ->
+            _ = delete_records(T, Sim),
+            S
+    end.
+
+delete_records(T, #sim{records = Records}) ->
+    ets:select_delete(Records, [{{{T, '_'}, '_'}, [], [true]}]).
 
 %% At a regroup point X, plan the groups at X + period from the states
-%% committed at X (Records, as the frame at X read them, or none: still in
-%% the records table) and the pairs the bodies said met often lately, and
+%% committed at X and the pairs the bodies said met often lately, and
 %% write who moves then. Without a group and without such a pair nothing
 %% can change, and nothing is planned.
-regroup(_X, _Records, #s{sim = #sim{period = 0}} = S) -> S;
-regroup(X, _Records, #s{sim = #sim{period = P, end_t = End}} = S) when X rem P =/= 0; X + P >= End -> S;
-regroup(X, Records, #s{sim = #sim{period = P, group_max = Max, grouping = Mode, plans = Plans, stats = Stats, met = MetTab},
+regroup(_X, #s{sim = #sim{period = 0}} = S) -> S;
+regroup(X, #s{sim = #sim{period = P, end_t = End}} = S) when X rem P =/= 0; X + P >= End -> S;
+regroup(X, #s{sim = #sim{period = P, group_max = Max, grouping = Mode, plans = Plans, stats = Stats, met = MetTab},
               leaders = Old, pids = Pids, grouped = Grouped} = S) ->
     %% the pairs that met often since the last regroup point but one
     Met = maps:from_list([{Pair, true} || Pair <- ets:select(MetTab, [{{'$1', '$2'}, [{'>=', '$2', X - P}], ['$1']}])]),
@@ -286,7 +301,7 @@ regroup(X, Records, #s{sim = #sim{period = P, group_max = Max, grouping = Mode, 
         true ->
             S;
         false ->
-            New = rw_regroup:plan(committed(X, Records, S), Old, Max, case Mode of eager -> eager; persistent -> Met end),
+            New = rw_regroup:plan(committed(X, S), Old, Max, case Mode of eager -> eager; persistent -> Met end),
             Moves = rw_regroup:moves(Old, New, Pids),
             At = X + P,
             ets:insert(Plans, [{{At, I}, Move} || {I, Move} <- maps:to_list(Moves)]),
@@ -301,14 +316,15 @@ regroup(X, Records, #s{sim = #sim{period = P, group_max = Max, grouping = Mode, 
     end.
 
 %% Every body's committed state at sync point X: {Idx, Radius, P, V}.
-committed(X, none, #s{sim = Sim} = S) -> committed(X, records_at(X, Sim), S);
-committed(_X, Records, #s{radii = Radii, idxs = Idxs}) ->
-    [{I, maps:get(I, Radii), Pos, V} || {I, {_, Pos, V, _, _}} <- lists:zip(Idxs, Records)].
+committed(X, #s{sim = Sim, radii = Radii, idxs = Idxs}) ->
+    [{I, maps:get(I, Radii), Pos, V} || {I, {_, Pos, V, _, _}} <- lists:zip(Idxs, records_at(X, Sim))].
 
 %% The records committed at sync point T, one per body (GVT passes T only
 %% once every body has committed it), in idx order: the table is ordered
 %% by {T, Idx}.
-records_at(T, #sim{records = Records}) -> ets:select(Records, [{{{T, '_'}, '$1'}, [], ['$1']}]).
+records_at(T, #sim{records = Records}) -> select_at(T, Records).
+
+select_at(T, Records) -> ets:select(Records, [{{{T, '_'}, '$1'}, [], ['$1']}]).
 
 add_waiting(At, Pid, [{A, _} = First | Rest]) when A < At -> [First | add_waiting(At, Pid, Rest)];
 add_waiting(At, Pid, [{At, Pids} | Rest]) -> [{At, [Pid | Pids]} | Rest];
@@ -319,15 +335,19 @@ wake(G, [{At, Pids} | Rest]) when At =< G ->
     wake(G, Rest);
 wake(_G, Waiting) -> Waiting.
 
-write_ring(T, Frame, #s{sim = Sim, ring_size = Size, frames = K}) ->
+%% Frame time Tick (Ms in ms) enters the ring; the oldest leaves it once
+%% the ring is full, and its records go.
+write_ring(Ms, Tick, #s{sim = Sim, ring_size = Size, frames = K}) ->
     Ring = Sim#sim.ring,
-    case K >= Size of
-        true ->
-            [{_, Old}] = ets:lookup(Ring, {slot, K rem Size}),
-            ets:delete(Ring, {t, Old});
-        false -> ok
-    end,
-    ets:insert(Ring, [{{t, T}, Frame}, {{slot, K rem Size}, T}, {latest, T}]).
+    _ = case K >= Size of
+            true ->
+                [{_, OldMs}] = ets:lookup(Ring, {slot, K rem Size}),
+                [{_, OldTick}] = ets:lookup(Ring, {t, OldMs}),
+                ets:delete(Ring, {t, OldMs}),
+                delete_records(OldTick, Sim);
+            false -> 0
+        end,
+    ets:insert(Ring, [{{t, Ms}, Tick}, {{slot, K rem Size}, Ms}, {latest, Ms}]).
 
 notify(undefined, _) -> ok;
 notify(Pid, Msg) -> Pid ! Msg, ok.
