@@ -255,7 +255,7 @@ open_sink(Opts) ->
     User = maps:get(on_frame, Opts, fun(_) -> ok end),
     case maps:find(frames, Opts) of
         error ->
-            {ok, case maps:is_key(on_frame, Opts) of true -> User; false -> none end, fun(_) -> ok end};
+            {ok, maps:get(on_frame, Opts, none), fun(_) -> ok end};
         {ok, File} ->
             case rw_frames:writer(File) of
                 {ok, Write, Close} ->

@@ -270,7 +270,7 @@ finish(T, #s{sim = Sim} = S) ->
             write_ring(Ms, T, S),
             Subs = S#s.subscribers,
             Frame = case lists:keymember(frames, 2, Subs) of
-                        true -> {frame, Ms, records_at(T, Sim)};
+                        true -> {frame, Ms, select_at(T, Sim#sim.records)};
                         false -> none
                     end,
             _ = [case What of
@@ -317,13 +317,10 @@ regroup(X, #s{sim = #sim{period = P, group_max = Max, grouping = Mode, plans = P
 
 %% Every body's committed state at sync point X: {Idx, Radius, P, V}.
 committed(X, #s{sim = Sim, radii = Radii, idxs = Idxs}) ->
-    [{I, maps:get(I, Radii), Pos, V} || {I, {_, Pos, V, _, _}} <- lists:zip(Idxs, records_at(X, Sim))].
+    [{I, maps:get(I, Radii), Pos, V} || {I, {_, Pos, V, _, _}} <- lists:zip(Idxs, select_at(X, Sim#sim.records))].
 
-%% The records committed at sync point T, one per body (GVT passes T only
-%% once every body has committed it), in idx order: the table is ordered
-%% by {T, Idx}.
-records_at(T, #sim{records = Records}) -> select_at(T, Records).
-
+%% The records committed at sync point T, in idx order (the table is
+%% ordered by {T, Idx}): one per body once GVT has passed T.
 select_at(T, Records) -> ets:select(Records, [{{{T, '_'}, '$1'}, [], ['$1']}]).
 
 add_waiting(At, Pid, [{A, _} = First | Rest]) when A < At -> [First | add_waiting(At, Pid, Rest)];

@@ -7,8 +7,8 @@
 
 -type handle() :: #{sup := pid(), gvt := pid(), ring := ets:tid(), sim := #sim{}, started := integer()}.
 -type options() :: #{buckets => pos_integer(), owner => pid(),
-                     %% the owner hears of every frame (true: frames), or of its time only
-                     subscribe => boolean() | frames | times,
+                     %% the owner hears of every frame, or of its time only
+                     subscribe => false | frames | times,
                      groups => boolean(), group_max => pos_integer(),
                      %% (tests) regroup points this many strides apart, groups of
                      %% all bodies near each other however they move
@@ -85,7 +85,7 @@ start(#scene{spheres = Spheres, initial = Initial, duration = End} = Scene, Opts
                                                   tuple_to_list(Buckets)),
             _ = case maps:get(subscribe, Opts, false) of
                     false -> ok;
-                    What -> rw_gvt:subscribe(Gvt, maps:get(owner, Opts, self()), case What of true -> frames; _ -> What end)
+                    What -> rw_gvt:subscribe(Gvt, maps:get(owner, Opts, self()), What)
                 end,
             ok = rw_gvt:go(Gvt, Sim, Bodies, Opts),
             [P ! go || P <- Bodies],
