@@ -252,12 +252,14 @@ describe_failure(Other) ->
 
 %% Where frames go: a file, on_frame, both, or nowhere (none).
 open_sink(Opts) ->
-    User = maps:get(on_frame, Opts, fun(_) -> ok end),
+    User = maps:get(on_frame, Opts, none),
     case maps:find(frames, Opts) of
         error ->
-            {ok, maps:get(on_frame, Opts, none), fun(_) -> ok end};
+            {ok, User, fun(_) -> ok end};
         {ok, File} ->
             case rw_frames:writer(File) of
+                {ok, Write, Close} when User =:= none ->
+                    {ok, Write, Close};
                 {ok, Write, Close} ->
                     {ok, fun(F) -> Write(F), User(F) end, Close};
                 {error, Reason} ->

@@ -17,11 +17,13 @@ bodies([]) -> [];
 bodies([B]) -> [body(B)];
 bodies([B | Rest]) -> [body(B), $, | bodies(Rest)].
 
-body({Id, P, V, undefined, undefined}) ->
-    [<<"{\"id\":">>, jiffy:encode(Id), <<",\"p\":">>, vec(P), <<",\"v\":">>, vec(V), $}];
-body({Id, P, V, {{X, Y, Z}, QW}, W}) ->
-    [<<"{\"id\":">>, jiffy:encode(Id), <<",\"p\":">>, vec(P), <<",\"v\":">>, vec(V),
-     <<",\"q\":[">>, num(X), $,, num(Y), $,, num(Z), $,, num(QW), <<"],\"w\":">>, vec(W), $}].
+body({Id, P, V, Q, W}) ->
+    [<<"{\"id\":">>, jiffy:encode(Id), <<",\"p\":">>, vec(P), <<",\"v\":">>, vec(V), rotation(Q, W), $}].
+
+%% q and w only where rotation is modelled.
+rotation(undefined, undefined) -> [];
+rotation({{X, Y, Z}, QW}, W) ->
+    [<<",\"q\":[">>, num(X), $,, num(Y), $,, num(Z), $,, num(QW), <<"],\"w\":">>, vec(W)].
 
 vec({X, Y, Z}) -> [$[, num(X), $,, num(Y), $,, num(Z), $]].
 
