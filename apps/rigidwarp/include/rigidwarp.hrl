@@ -25,26 +25,29 @@
     tick_us = 1000 :: pos_integer()       % microseconds per tick, divides 1000
 }).
 
-%% What every process of one Time Warp simulation shares: set once at start.
+%% What every process of one Time Warp simulation shares: built once by
+%% rw_sim:new/4 before any process of the simulation starts (the GVT
+%% process's pid excepted, which the processes started after it get).
 -record(sim, {
     scene :: #scene{},
     n :: pos_integer(),                       % dynamic bodies
-    end_t :: non_neg_integer(),                % ticks
+    end_t :: non_neg_integer(),               % ticks
+    sync :: rw_sync:calendar(),               % sync points, regroup points
     buckets :: tuple(),                       % bucket pids, index 0 at element 1
     gvt :: pid() | undefined,
-    records :: ets:tid(),                     % {{T, Idx}, BodyFrame}: committed states
-    counts :: ets:tid(),                      % {T, Committed}: bodies committed at T
-    ring :: ets:tid(),                        % committed frames (see rw_gvt)
-    stats :: counters:counters_ref(),         % see rw_timewarp:stat_index/1
-    profile = false :: boolean(),             % time the engine's stages (rw_timewarp:stats/1)
-    lvts :: atomics:atomics_ref(),            % every body's LVT, at rw_timewarp:lvt_slot(Idx)
+    records :: ets:tid(),                     % committed states (rw_commits)
+    counts :: ets:tid(),                      % bodies committed per sync point (rw_commits)
+    ring :: ets:tid(),                        % committed frames (rw_ring)
+    owners :: ets:tid(),                      % {Idx, Pid}: the entity that steps body Idx
+    procs :: ets:tid(),                       % {Idx, Pid}: the process of body Idx
+    met :: ets:tid(),                         % {{A, B}, T}: A met B at many substeps (rw_neighbour)
+    stats :: rw_stats:counters(),
+    profile = false :: boolean(),             % count the engine's stages (rw_stats)
+    lvts :: atomics:atomics_ref(),            % every body's LVT, at rw_sim:lvt_slot(Idx)
     gvt_now :: atomics:atomics_ref(),         % GVT (slot 1), which bodies read when they step
-    %% contact groups (rw_regroup): bodies may regroup at every multiple of
-    %% period (0: each body stays on its own), planned a period earlier
-    period = 0 :: non_neg_integer(),          % ticks
-    group_max = 1 :: pos_integer(),           % the most bodies in one group
-    grouping = persistent :: persistent | eager,   % eager: tests only
-    plans :: ets:tid(),                       % {{S, Idx}, rw_regroup:move()}: what body Idx does at S
-    met :: ets:tid(),                         % {{A, B}, T}: A met B at many substeps (rw_body:touch/5)
-    owners :: ets:tid()                       % {Idx, Pid}: the entity that steps body Idx
+    %% contact groups (rw_regroup): the most bodies in one group, and how
+    %% groups are planned (eager: tests only)
+    group_max = 1 :: pos_integer(),
+    grouping = persistent :: persistent | eager,
+    delay = none :: none | {Seed :: integer(), MaxMs :: non_neg_integer()}   % test hook (rw_body)
 }).

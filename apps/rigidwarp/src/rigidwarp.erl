@@ -86,8 +86,8 @@ frames(Sim, T) when ?IS_SIM(Sim) ->
     Ring = maps:get(ring, Sim),
     alive(fun() ->
                   case T of
-                      latest -> rw_gvt:latest(Ring);
-                      _ when is_number(T), T >= 0 -> rw_gvt:frame_at(Ring, T);
+                      latest -> rw_ring:latest(Ring);
+                      _ when is_number(T), T >= 0 -> rw_ring:frame_at(Ring, T);
                       _ -> {error, lists:flatten(io_lib:format("frame time must be latest or ms >= 0, got ~0p", [T]))}
                   end
           end);
@@ -96,7 +96,7 @@ frames(Other, _) -> not_a_sim(Other).
 %% Up to Max committed frames after T ms that are still in the ring.
 -spec frames_after(sim(), number(), pos_integer()) -> [rw_reference:frame()] | {error, string()}.
 frames_after(Sim, T, Max) when ?IS_SIM(Sim), is_number(T), is_integer(Max), Max > 0 ->
-    alive(fun() -> rw_gvt:frames_after(maps:get(ring, Sim), T, Max) end);
+    alive(fun() -> rw_ring:frames_after(maps:get(ring, Sim), T, Max) end);
 frames_after(Sim, T, Max) when ?IS_SIM(Sim) ->
     {error, lists:flatten(io_lib:format("frames_after needs a time in ms and a positive count, got ~0p, ~0p",
                                         [T, Max]))};
@@ -128,7 +128,7 @@ gvt(Sim) when ?IS_SIM(Sim) -> alive(fun() -> rw_gvt:gvt(maps:get(gvt, Sim)) end)
 gvt(Other) -> not_a_sim(Other).
 
 -spec subscribe(sim()) -> ok | {error, string()}.
-subscribe(Sim) when ?IS_SIM(Sim) -> alive(fun() -> rw_gvt:subscribe(maps:get(gvt, Sim), self()) end);
+subscribe(Sim) when ?IS_SIM(Sim) -> alive(fun() -> rw_gvt:subscribe(maps:get(gvt, Sim), self(), frames) end);
 subscribe(Other) -> not_a_sim(Other).
 
 -spec await(sim(), timeout()) -> ok | timeout | {error, string()}.

@@ -8,7 +8,7 @@
 %% acknowledgement per pair and substep. A group is a connected set of
 %% bodies that
 %%   meet  - met at many substeps lately (the entities say so in #sim.met:
-%%           rw_body:touch/5) and are closer than 1.25 x the sum of their
+%%           rw_neighbour:touch/4) and are closer than 1.25 x the sum of their
 %%           radii: resting, rolling or pressing on each other, or bouncing
 %%           on each other again and again as Cylinders' layers do when they
 %%           land; a bounce in a gas of spheres is over in a few substeps and
@@ -24,9 +24,12 @@
 %% every regroup point.
 %% A group's leader is its lowest idx. Grouping never changes the physics,
 %% only which process computes it.
+%%
+%% decide/4 is what the GVT process does at a regroup point: the groups
+%% from the committed states, and whom to tell what; it carries that out.
 -module(rw_regroup).
--export([plan/4, moves/3]).
--export_type([body/0, leaders/0, move/0, pairs/0]).
+-export([new/3, quiet/2, decide/4, plan/4, moves/3]).
+-export_type([body/0, leaders/0, move/0, pairs/0, groups/0]).
 
 %% A body's committed state at the regroup point: idx, radius, position,
 %% post-response velocity.
@@ -34,14 +37,46 @@
 %% Each body's group, as the idx of the group's leader (its lowest idx).
 -type leaders() :: #{non_neg_integer() => non_neg_integer()}.
 %% What a body process does at a regroup point: send its members to their
-%% new leaders ([{Member, NewLeader, NewLeaderPid}]) and/or gather a group
-%% from the old leaders of its new members.
--type move() :: #{send => [{non_neg_integer(), non_neg_integer(), pid()}], gather => [non_neg_integer()]}.
+%% new leaders ([{Member, NewLeader, NewLeaderPid}], and for each of those
+%% leaders the old leaders it gathers from, which it learns from the
+%% bundles) and/or gather a group from the old leaders of its new members.
+-type move() :: #{send => [{non_neg_integer(), non_neg_integer(), pid()}],
+                  expect => #{non_neg_integer() => [non_neg_integer()]},
+                  gather => [non_neg_integer()]}.
 %% Pairs of bodies {A, B}, A < B.
 -type pairs() :: #{{non_neg_integer(), non_neg_integer()} => true}.
 
 -define(NEAR, 1.25).
 -define(EAGER, 3.0).
+
+%% The groups of a simulation as planned last: every body alone at first.
+-record(groups, {
+    leaders :: leaders(),
+    grouped = false :: boolean(),            % any group of two bodies or more
+    max :: pos_integer(),
+    mode :: persistent | eager               % eager: tests only
+}).
+-opaque groups() :: #groups{}.
+
+-spec new([non_neg_integer()], pos_integer(), persistent | eager) -> groups().
+new(Idxs, Max, Mode) -> #groups{leaders = maps:from_list([{I, I} || I <- Idxs]), max = Max, mode = Mode}.
+
+%% Without a group and without a pair that met often nothing can change:
+%% no need to read the committed states.
+-spec quiet(pairs(), groups()) -> boolean().
+quiet(Met, #groups{mode = Mode, grouped = Grouped}) ->
+    Mode =:= persistent andalso not Grouped andalso map_size(Met) =:= 0.
+
+%% At a regroup point: the groups from every body's committed state there
+%% and the pairs that met often lately, and what each entity whose group
+%% changes must do at the next regroup point ({Idx, Move}: tell the process
+%% of body Idx). Pids maps idx to body process.
+-spec decide([body()], pairs(), #{non_neg_integer() => pid()}, groups()) -> {[{non_neg_integer(), move()}], groups()}.
+decide(Bodies, Met, Pids, #groups{leaders = Old, max = Max, mode = Mode} = G) ->
+    New = plan(Bodies, Old, Max, case Mode of eager -> eager; persistent -> Met end),
+    Moves = moves(Old, New, Pids),
+    {[{I, Move} || {I, #{send := _} = Move} <- maps:to_list(Moves)],
+     G#groups{leaders = New, grouped = lists:any(fun({I, L}) -> I =/= L end, maps:to_list(New))}}.
 
 %% The groups from Bodies, the current groups and the pairs that met at
 %% many substeps lately (eager: tests).
@@ -73,10 +108,12 @@ moves(Old, New, Pids) ->
     OldGroups = groups(Old),
     NewGroups = groups(New),
     Changed = fun(Groups, Other) -> [G || {_, G} <- maps:to_list(Groups), not is_group(G, Other)] end,
-    Sends = [{hd(G), #{send => [{M, maps:get(M, New), maps:get(maps:get(M, New), Pids)} || M <- G]}}
-             || G <- Changed(OldGroups, NewGroups)],
     Gathers = [{hd(G), #{gather => lists:usort([maps:get(M, Old) || M <- G])}}
                || G <- Changed(NewGroups, OldGroups)],
+    From = maps:from_list([{L, F} || {L, #{gather := F}} <- Gathers]),
+    Sends = [{hd(G), #{send => [{M, maps:get(M, New), maps:get(maps:get(M, New), Pids)} || M <- G],
+                       expect => maps:with([maps:get(M, New) || M <- G], From)}}
+             || G <- Changed(OldGroups, NewGroups)],
     lists:foldl(fun({I, Move}, Acc) -> maps:update_with(I, fun(M) -> maps:merge(M, Move) end, Move, Acc) end,
                 #{}, Sends ++ Gathers).
 

@@ -5,8 +5,8 @@
 -export([start_link/0, tables/1]).
 -export([init/1, handle_call/3, handle_cast/2]).
 
--type tables() :: #{records := ets:tid(), counts := ets:tid(), ring := ets:tid(), plans := ets:tid(),
-                    owners := ets:tid(), met := ets:tid()}.
+-type tables() :: #{records := ets:tid(), counts := ets:tid(), ring := ets:tid(), owners := ets:tid(),
+                    procs := ets:tid(), met := ets:tid()}.
 -export_type([tables/0]).
 
 -spec start_link() -> {ok, pid()}.
@@ -20,7 +20,7 @@ init([]) ->
     {ok, #{records => ets:new(rw_records, [ordered_set, public, {write_concurrency, true}]),
            counts => ets:new(rw_counts, [set, public, {write_concurrency, true}]),
            ring => ets:new(rw_frames, [set, public, {read_concurrency, true}]),
-           plans => ets:new(rw_plans, [set, public, {read_concurrency, true}]),
+           procs => ets:new(rw_procs, [set, public, {read_concurrency, true}]),
            owners => ets:new(rw_owners, [set, public, {read_concurrency, true}, {write_concurrency, true}]),
            met => ets:new(rw_met, [set, public, {write_concurrency, true}])}}.
 

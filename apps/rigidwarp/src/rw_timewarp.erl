@@ -2,7 +2,7 @@
 %% rw_sims_sup, starts a body per sphere, and collects frames and counters.
 -module(rw_timewarp).
 -include("rigidwarp.hrl").
--export([start/2, run/2, stop/1, stats/1, progress/2, default_buckets/0, default_group_max/0, end_ms/1, lvt_slot/1]).
+-export([start/2, run/2, stop/1, stats/1, progress/2, default_buckets/0, end_ms/1]).
 -export_type([handle/0, options/0]).
 
 -type handle() :: #{sup := pid(), gvt := pid(), ring := ets:tid(), sim := #sim{}, started := integer()}.
@@ -18,92 +18,27 @@
                      on_frame => fun((rw_reference:frame()) -> any()),
                      on_progress => fun((map()) -> any())}.
 
--define(STAT_NAMES, [events, antievents, primary_rollbacks, secondary_rollbacks,
-                     rolled_back_substeps, computed_substeps,
-                     tvht_reductions, integrate_reductions, rollback_reductions, gvt_reductions, rollback_calls_reductions,
-                     steps, regroups]).
--define(PROFILE_NAMES, [tvht_reductions, integrate_reductions, rollback_reductions, gvt_reductions, rollback_calls_reductions]).
-
 -spec default_buckets() -> pos_integer().
 default_buckets() -> 64.
 
-%% The most bodies the engine steps as one contact group, by default: a
-%% group is one process, and groups should remain many enough to keep every
-%% scheduler busy.
--spec default_group_max() -> pos_integer().
-default_group_max() -> 64.
-
-%% Bodies may regroup at frame times at least 8 substeps apart (every
-%% frame in the paper's scenes: 10 ms), planned when GVT reaches the
-%% regroup point before (rw_gvt): a new persistent contact is stepped as
-%% one group one or two periods after its bodies have met often enough to
-%% say so. Frame times are sync points anyway; regroup points of their own
-%% (every 16 substeps) added a commit per body every 16 ms, 2-5 % of the
-%% time of scenes that never regroup.
-period(#scene{substep = Dt, frame = F}) -> F * max(1, (8 * Dt + F - 1) div F).
-
 %% Start a simulation; it runs on its own until the scene's end.
 -spec start(#scene{}, options()) -> {ok, handle()} | {error, term()}.
-start(#scene{spheres = Spheres, initial = Initial, duration = End} = Scene, Opts) ->
+start(Scene, Opts) ->
     {ok, _} = application:ensure_all_started(rigidwarp),
     NBuckets = case Scene#scene.buckets of
                    undefined -> maps:get(buckets, Opts, default_buckets());
                    B -> maps:get(buckets, Opts, B)
                end,
-    case supervisor:start_child(rw_sims_sup, [Scene, NBuckets]) of
-        {ok, Sup} ->
-            #{tables := TablesPid, gvt := Gvt, buckets := Buckets, bodies := BodySup} = rw_sim_sup:children(Sup),
-            #{records := Records, counts := Counts, ring := Ring, plans := Plans, owners := Owners, met := Met} =
-                rw_sim_tables:tables(TablesPid),
-            Period = case {maps:get(groups, Opts, true), maps:find(regroup_every, Opts)} of
-                         {false, _} -> 0;
-                         {true, {ok, Every}} -> Every * Scene#scene.stride;
-                         {true, error} -> period(Scene)
-                     end,
-            Sim = #sim{scene = Scene, n = length(Spheres), end_t = End, buckets = Buckets, gvt = Gvt,
-                       records = Records, counts = Counts, ring = Ring,
-                       stats = counters:new(length(?STAT_NAMES), [write_concurrency]),
-                       profile = maps:get(profile, Opts, false),
-                       lvts = atomics:new(lvt_slot(lists:max([0 | [I || #sphere{idx = I} <- Spheres]])), [{signed, false}]),
-                       gvt_now = new_gvt(),
-                       period = Period,
-                       group_max = maps:get(group_max, Opts, default_group_max()),
-                       grouping = maps:get(grouping, Opts, persistent),
-                       plans = Plans, owners = Owners, met = Met},
-            %% every body holds the simulation record: not the whole scene's
-            %% bodies, which it never reads (a copy per body fills the heaps)
-            BodySim = Sim#sim{scene = Scene#scene{spheres = [], initial = []}},
-            Bodies = [begin
-                          {ok, Pid} = supervisor:start_child(BodySup, [BodySim, Sphere, St]),
-                          Pid
-                      end || {Sphere, St} <- lists:zip(Spheres, Initial)],
-            _ = case maps:find(delay, Opts) of
-                {ok, {Seed, MaxMs}} -> [P ! {delay, Seed + I, MaxMs} || {I, P} <- lists:zip(lists:seq(1, length(Bodies)), Bodies)];
-                error -> ok
-            end,
-            Sim#sim.profile andalso lists:foreach(fun(B) -> rw_bucket:profile(B, Sim#sim.stats) end,
-                                                  tuple_to_list(Buckets)),
-            _ = case maps:get(subscribe, Opts, false) of
-                    false -> ok;
-                    What -> rw_gvt:subscribe(Gvt, maps:get(owner, Opts, self()), What)
-                end,
-            ok = rw_gvt:go(Gvt, Sim, Bodies, Opts),
-            [P ! go || P <- Bodies],
-            {ok, #{sup => Sup, gvt => Gvt, ring => Ring, sim => Sim,
-                   started => erlang:monotonic_time(millisecond)}};
+    Subscribers = case maps:get(subscribe, Opts, false) of
+                      false -> [];
+                      What -> [{maps:get(owner, Opts, self()), What}]
+                  end,
+    case rw_sim_sup:start(Scene, NBuckets, Opts#{subscribers => Subscribers}) of
+        {ok, Sup, #sim{gvt = Gvt, ring = Ring} = Sim} ->
+            {ok, #{sup => Sup, gvt => Gvt, ring => Ring, sim => Sim, started => erlang:monotonic_time(millisecond)}};
         {error, _} = Error ->
             Error
     end.
-
-%% Where body Idx publishes its LVT in #sim.lvts: one 64-byte cache line
-%% per body, so that bodies on different cores do not share lines.
--spec lvt_slot(non_neg_integer()) -> pos_integer().
-lvt_slot(Idx) -> Idx * 8 + 1.
-
-new_gvt() ->
-    Ref = atomics:new(1, [{signed, true}]),
-    ok = atomics:put(Ref, 1, -1),
-    Ref.
 
 %% The end time in ms.
 -spec end_ms(#sim{}) -> number().
@@ -116,14 +51,7 @@ stop(#{sup := Sup}) ->
 
 -spec stats(handle()) -> #{atom() => number()}.
 stats(#{sim := #sim{stats = Ref, n = N, end_t = End, scene = #scene{substep = Dt}, profile = Profile}}) ->
-    All = maps:from_list(lists:zip(?STAT_NAMES, [counters:get(Ref, I) || I <- lists:seq(1, length(?STAT_NAMES))])),
-    Raw = case Profile of
-              true ->
-                  %% a rollback's bucket calls are counted by the buckets
-                  #{rollback_reductions := Rb, rollback_calls_reductions := Calls} = All,
-                  maps:remove(rollback_calls_reductions, All#{rollback_reductions := max(0, Rb - Calls)});
-              false -> maps:without(?PROFILE_NAMES, All)
-          end,
+    Raw = rw_stats:read(Ref, Profile),
     Committed = N * (End div Dt),
     Computed = maps:get(computed_substeps, Raw),
     Raw#{rollbacks => maps:get(primary_rollbacks, Raw) + maps:get(secondary_rollbacks, Raw),

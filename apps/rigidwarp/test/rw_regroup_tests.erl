@@ -55,9 +55,12 @@ moves_test() ->
     Pids = #{3 => pid3, 7 => pid7, 9 => pid9},
     Old = #{3 => 3, 7 => 7, 9 => 9},
     New = #{3 => 3, 7 => 3, 9 => 9},
-    ?assertEqual(#{3 => #{send => [{3, 3, pid3}], gather => [3, 7]}, 7 => #{send => [{7, 3, pid3}]}},
+    %% every sender also says whom each of its new leaders gathers from
+    ?assertEqual(#{3 => #{send => [{3, 3, pid3}], expect => #{3 => [3, 7]}, gather => [3, 7]},
+                   7 => #{send => [{7, 3, pid3}], expect => #{3 => [3, 7]}}},
                  rw_regroup:moves(Old, New, Pids)),
     %% and back apart: the leader sends both, 7 gathers itself
-    ?assertEqual(#{3 => #{send => [{3, 3, pid3}, {7, 7, pid7}], gather => [3]}, 7 => #{gather => [3]}},
+    ?assertEqual(#{3 => #{send => [{3, 3, pid3}, {7, 7, pid7}], expect => #{3 => [3], 7 => [3]}, gather => [3]},
+                   7 => #{gather => [3]}},
                  rw_regroup:moves(New, Old, Pids)),
     ?assertEqual(#{}, rw_regroup:moves(New, New, Pids)).

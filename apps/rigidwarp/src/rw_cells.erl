@@ -1,0 +1,272 @@
+%% The contents of one TVHT bucket (pure): per cell and writer the
+%% segments of the writers' steps, the narrowphase of a write against the
+%% other writers' states at the same LVT in the same cell, the contacts
+%% reported, and what a delete invalidates. rw_bucket is the process that
+%% holds one and serialises access to its cells with locks.
+%%
+%% Keeping a group's members together per cell lets a probe skip its own
+%% group with one comparison, and a foreign group whose write lies apart
+%% from its own with one more (Cylinders' rows of piles share cells but
+%% never touch); only then are member pairs compared, by time and box.
+%% Contacts among the members of one write are not its business: the
+%% writer finds those itself (rw_island).
+-module(rw_cells).
+-include("rigidwarp.hrl").
+-export([new/2, probe/3, store/7, delete/5, gc/2, contact_ids/3]).
+-export_type([cells/0, ids/0, cid/0, write/0, payload/0, span/0, member_span/0, hit/0, entry/0, bounds/0]).
+
+%% One step's states of one member: T0 is the LVT of the first state,
+%% States (and, with CCD, the free displacements) hold one per substep,
+%% Bounds is a box that holds the sphere (swept, with CCD) at all of them.
+-type payload() :: {Idx :: non_neg_integer(), Writer :: term(), #sphere{}, T0 :: non_neg_integer(),
+                    States :: rw_states:packed(), Bounds :: bounds()}.
+-type bounds() :: {float(), float(), float(), float(), float(), float()}.
+%% One entity's step: the writer, its first substep, its members' payloads
+%% and a box that holds them all.
+-type write() :: {Writer :: term(), T0 :: non_neg_integer(), #{non_neg_integer() => payload()}, bounds()}.
+%% A cell touched by the write from Ta to Tb, and by each member from its
+%% own Ta to Tb.
+-type span() :: {rw_hash:cell(), Ta :: non_neg_integer(), Tb :: non_neg_integer(), [member_span()]}.
+-type member_span() :: {Idx :: non_neg_integer(), Ta :: non_neg_integer(), Tb :: non_neg_integer()}.
+%% One body's state at one LVT, as the narrowphase sees it.
+-type entry() :: {Idx :: non_neg_integer(), Writer :: term(), #sphere{}, #st{}, Disp :: rw_vec:vec() | undefined}.
+%% A contact found by the narrowphase between the writer's member MyIdx and
+%% another body, in canonical order (lower idx first).
+-type hit() :: {MyIdx :: non_neg_integer(), entry(), #contact{}}.
+
+-type cid() :: {non_neg_integer(), non_neg_integer(), non_neg_integer(), term()}.
+%% The ids of the contacts at T between the writer's members and other
+%% bodies, by {member idx, partner idx}.
+-type ids() :: #{{non_neg_integer(), non_neg_integer()} => cid()}.
+%% A write's presence in one cell.
+-type seg() :: {Ta :: non_neg_integer(), Tb :: non_neg_integer(), write(), [member_span()]}.
+
+-record(cells, {
+    model :: #model{},
+    dt :: pos_integer(),                     % substep, ticks
+    %% per cell, per writer, its segments newest first: an entity writes
+    %% forward in time and a rollback cuts the newest ones, so each list is
+    %% sorted and a probe near the present reads only its head
+    cells = #{} :: #{rw_hash:cell() => #{term() => [seg()]}},
+    %% contacts reported from this bucket, by body: [{T, Cid}]
+    by_body = #{} :: #{non_neg_integer() => [{non_neg_integer(), cid()}]},
+    contacts = #{} :: #{cid() => {Detector :: term(), Other :: term()}},
+    gc_at = 0 :: non_neg_integer()
+}).
+-opaque cells() :: #cells{}.
+
+-spec new(#model{}, pos_integer()) -> cells().
+new(Model, Dt) -> #cells{model = Model, dt = Dt}.
+
+%% The ids of the contacts at T between the writer's members and other
+%% bodies, {T, lower idx, higher idx, unique}, with one fresh term per pair
+%% from Uniques.
+-spec contact_ids(non_neg_integer(), [{non_neg_integer(), non_neg_integer()}], [term()]) -> ids().
+contact_ids(T, Pairs, Uniques) ->
+    maps:from_list([{{Idx, OIdx}, {T, min(Idx, OIdx), max(Idx, OIdx), U}} || {{Idx, OIdx}, U} <- lists:zip(Pairs, Uniques)]).
+
+%% Nothing before GVT can change any more: forget it (now and then: a
+%% sweep costs a pass over every segment, done every 32 substeps).
+-spec gc(non_neg_integer(), cells()) -> cells().
+gc(Gvt, #cells{gc_at = At} = S) when Gvt < At -> S;
+gc(Gvt, #cells{cells = Cells, by_body = By, contacts = C, dt = Dt} = S) ->
+    Recent = fun(_, Segs) ->
+                     case lists:takewhile(fun({_, Tb, _, _}) -> Tb >= Gvt end, Segs) of
+                         [] -> false;
+                         Kept -> {true, Kept}
+                     end
+             end,
+    Cells1 = maps:filtermap(fun(_, ByWriter) ->
+                                    case maps:filtermap(Recent, ByWriter) of
+                                        Empty when map_size(Empty) =:= 0 -> false;
+                                        Kept -> {true, Kept}
+                                    end
+                            end, Cells),
+    By1 = maps:filtermap(fun(_, L) ->
+                                 case [X || {T, _} = X <- L, T >= Gvt] of
+                                     [] -> false;
+                                     Kept -> {true, Kept}
+                                 end
+                         end, By),
+    C1 = maps:filter(fun({T, _, _, _}, _) -> T >= Gvt end, C),
+    S#cells{cells = Cells1, by_body = By1, contacts = C1, gc_at = Gvt + 32 * Dt}.
+
+%% The earliest LVT at which one of the written members touches another
+%% body's state in one of its cells, with every contact at that LVT. Member
+%% pairs meet in several cells: their windows are merged first, so that
+%% each pair is checked once, and not at all when their boxes are apart.
+-spec probe(write(), [span()], cells()) -> {non_neg_integer(), [hit()]} | none.
+probe({Me, _, _, Bounds} = Write, Spans, #cells{cells = Cells} = S) ->
+    Windows = lists:foldl(
+                fun({Cell, Ta, Tb, Ms}, Acc) ->
+                        case Cells of
+                            %% (maps:to_list is one BIF call; maps:fold steps
+                            %% an iterator in Erlang)
+                            #{Cell := ByWriter} -> cell_windows(maps:to_list(ByWriter), Me, Bounds, Ta, Tb, Ms, Acc);
+                            _ -> Acc
+                        end
+                end, #{}, Spans),
+    scan_windows(maps:to_list(Windows), Write, none, S).
+
+%% The other writers in a cell (not the prober's own earlier writes).
+cell_windows([], _Me, _Bounds, _Ta, _Tb, _Ms, Acc) -> Acc;
+cell_windows([{Me, _} | Rest], Me, Bounds, Ta, Tb, Ms, Acc) -> cell_windows(Rest, Me, Bounds, Ta, Tb, Ms, Acc);
+cell_windows([{_, Segs} | Rest], Me, Bounds, Ta, Tb, Ms, Acc) ->
+    cell_windows(Rest, Me, Bounds, Ta, Tb, Ms, segs(Segs, Bounds, Ta, Tb, Ms, Acc)).
+
+%% A writer's segments in the cell, newest first: skip those after the
+%% window, stop at the first one before it; for each that overlaps it, and
+%% whose write is not apart from the prober's, the member pairs that meet
+%% in time.
+segs([], _Bounds, _Ta, _Tb, _Ms, Acc) -> Acc;
+segs([{_, OTb, _, _} | _], _Bounds, Ta, _Tb, _Ms, Acc) when OTb < Ta -> Acc;
+segs([{OTa, _, _, _} | Rest], Bounds, Ta, Tb, Ms, Acc) when OTa > Tb -> segs(Rest, Bounds, Ta, Tb, Ms, Acc);
+segs([{_, _, {_, _, _, OBounds} = W, OMs} | Rest], Bounds, Ta, Tb, Ms, Acc) ->
+    Acc1 = case apart(Bounds, OBounds) of
+               true -> Acc;
+               false -> member_windows(Ms, OMs, W, Acc)
+           end,
+    segs(Rest, Bounds, Ta, Tb, Ms, Acc1).
+
+%% Windows keyed by {member, other member, other write's T0}.
+member_windows([], _OMs, _W, Acc) -> Acc;
+member_windows([{I, A, B} | Rest], OMs, {_, OT0, _, _} = W, Acc) ->
+    Acc1 = lists:foldl(fun({O, OA, OB}, Ac) ->
+                               Lo = max(A, OA),
+                               Hi = min(B, OB),
+                               Key = {I, O, OT0},
+                               if
+                                   Lo > Hi -> Ac;
+                                   true ->
+                                       case Ac of
+                                           #{Key := {_, L, H}} -> Ac#{Key := {W, min(L, Lo), max(H, Hi)}};
+                                           _ -> Ac#{Key => {W, Lo, Hi}}
+                                       end
+                               end
+                       end, Acc, OMs),
+    member_windows(Rest, OMs, W, Acc1).
+
+scan_windows([], _Write, Best, _S) -> Best;
+scan_windows([{{I, O, _}, {{_, _, OMembers, _}, Lo, Hi}} | Rest], {_, _, Members, _} = Write, Best, S) ->
+    Mine = maps:get(I, Members),
+    Other = maps:get(O, OMembers),
+    case apart(Mine, Other) of
+        true -> scan_windows(Rest, Write, Best, S);
+        false -> scan_windows(Rest, Write, scan(Lo, bound(Hi, Best), Mine, Other, Best, S), S)
+    end.
+
+bound(Hi, none) -> Hi;
+bound(Hi, {BT, _}) -> min(Hi, BT).
+
+%% Two boxes (of writes or of payloads) that do not overlap: what is
+%% inside cannot touch.
+apart({_, _, _, _, _, A}, {_, _, _, _, _, B}) when is_tuple(A) -> apart(A, B);
+apart({AX0, AY0, AZ0, AX1, AY1, AZ1}, {BX0, BY0, BZ0, BX1, BY1, BZ1}) ->
+    AX1 < BX0 orelse BX1 < AX0 orelse AY1 < BY0 orelse BY1 < AY0 orelse AZ1 < BZ0 orelse BZ1 < AZ0.
+
+%% First LVT in [Lo, Hi] at which the two bodies touch. Without CCD the
+%% test is a plain distance check on the stored positions, which skips
+%% the substeps at which the two are too far apart to touch yet; the
+%% contact itself is computed in canonical order only on a hit.
+scan(Lo, Hi, _Mine, _Other, Best, _S) when Lo > Hi -> Best;
+scan(Lo, Hi, {_, _, #sphere{radius = RA}, T0A, StsA, _} = Mine,
+     {_, _, #sphere{radius = RB}, T0B, StsB, _} = Other, Best, #cells{dt = Dt, model = #model{ccd = false}} = S) ->
+    case rw_states:first_touch(StsA, (Lo - T0A) div Dt + 1, StsB, (Lo - T0B) div Dt + 1, (Hi - Lo) div Dt,
+                               RA + RB) of
+        none -> Best;
+        K -> hit(Lo + K * Dt, Mine, Other, Best, S)
+    end;
+scan(T, Hi, _Mine, _Other, Best, _S) when T > Hi -> Best;
+scan(T, Hi, Mine, Other, Best, #cells{model = M, dt = Dt} = S) ->
+    case contact(M, entry(Mine, T, Dt), entry(Other, T, Dt)) of
+        none -> scan(T + Dt, Hi, Mine, Other, Best, S);
+        _ -> hit(T, Mine, Other, Best, S)
+    end.
+
+hit(T, {Idx, _, _, _, _, _} = Mine, Other, Best, #cells{model = M, dt = Dt}) ->
+    B = entry(Other, T, Dt),
+    Hit = {Idx, B, contact(M, entry(Mine, T, Dt), B)},
+    case Best of
+        {T, Hits} ->
+            OIdx = element(1, B),
+            case lists:any(fun({I, {O, _, _, _, _}, _}) -> I =:= Idx andalso O =:= OIdx end, Hits) of
+                true -> Best;
+                false -> {T, [Hit | Hits]}
+            end;
+        _ -> {T, [Hit]}
+    end.
+
+entry({Idx, Pid, Sphere, T0, States, _}, T, Dt) ->
+    I = (T - T0) div Dt + 1,
+    {Idx, Pid, Sphere, rw_states:state(States, I), rw_states:displacement(States, I)}.
+
+%% Narrowphase in canonical order: the lower index first.
+contact(M, {IA, _, _, _, _} = A, {IB, _, _, _, _} = B) when IA < IB -> narrow(M, A, B);
+contact(M, A, B) -> narrow(M, B, A).
+
+narrow(#model{ccd = false}, {_, _, #sphere{radius = RA}, #st{p = PA}, _}, {_, _, #sphere{radius = RB}, #st{p = PB}, _}) ->
+    rw_narrow:sphere_sphere(PA, RA, PB, RB);
+narrow(#model{ccd = true}, {_, _, #sphere{radius = RA}, #st{p = PA}, DA},
+       {_, _, #sphere{radius = RB}, #st{p = PB}, DB}) ->
+    rw_narrow:swept_sphere_sphere(PA, DA, RA, PB, DB, RB).
+
+%% Store the probed write's segments up to UpTo, and the contacts it found
+%% there (in this bucket).
+-spec store(term(), write(), [span()], {non_neg_integer(), [hit()]} | none,
+            non_neg_integer(), ids(), cells()) -> cells().
+store(Owner, Write, Spans, Result, UpTo, Ids, #cells{cells = Cells} = S) ->
+    Cells1 = lists:foldl(fun({Cell, Ta, Tb, Ms}, Acc) when Ta =< UpTo ->
+                                 Seg = {Ta, min(Tb, UpTo), Write, [{I, A, min(B, UpTo)} || {I, A, B} <- Ms, A =< UpTo]},
+                                 case Acc of
+                                     #{Cell := #{Owner := Segs} = ByW} -> Acc#{Cell := ByW#{Owner := [Seg | Segs]}};
+                                     #{Cell := ByW} -> Acc#{Cell := ByW#{Owner => [Seg]}};
+                                     _ -> Acc#{Cell => #{Owner => [Seg]}}
+                                 end;
+                            (_, Acc) -> Acc
+                         end, Cells, Spans),
+    S1 = S#cells{cells = Cells1},
+    case Result of
+        {UpTo, Hits} ->
+            lists:foldl(fun({Idx, {OIdx, OPid, _, _, _}, _}, Acc) ->
+                                record(maps:get({Idx, OIdx}, Ids), UpTo, Idx, Owner, OIdx, OPid, Acc)
+                        end, S1, Hits);
+        _ ->
+            S1
+    end.
+
+record(Cid, T, Idx, Detector, OIdx, Other, #cells{by_body = By, contacts = C} = S) ->
+    Add = fun(L) -> [{T, Cid} | L] end,
+    By1 = maps:update_with(OIdx, Add, [{T, Cid}], maps:update_with(Idx, Add, [{T, Cid}], By)),
+    S#cells{by_body = By1, contacts = C#{Cid => {Detector, Other}}}.
+
+%% Delete Owner's states after R in the cells Owned; return the contacts
+%% its members Idxs had there after R (once each).
+-spec delete(term(), [non_neg_integer()], non_neg_integer(), [rw_hash:cell()], cells()) ->
+          {[{cid(), term(), term()}], cells()}.
+delete(Owner, Idxs, R, Owned, #cells{cells = Cells, by_body = By, contacts = C} = S) ->
+    Cells1 = lists:foldl(
+               fun(Cell, Acc) ->
+                       case Acc of
+                           #{Cell := #{Owner := Segs} = ByW} ->
+                               case truncate(Segs, R) of
+                                   [] when map_size(ByW) =:= 1 -> maps:remove(Cell, Acc);
+                                   [] -> Acc#{Cell := maps:remove(Owner, ByW)};
+                                   Kept -> Acc#{Cell := ByW#{Owner := Kept}}
+                               end;
+                           _ -> Acc
+                       end
+               end, Cells, Owned),
+    {Gone, By1} = lists:foldl(fun(Idx, {G, B}) ->
+                                      case lists:partition(fun({T, _}) -> T > R end, maps:get(Idx, B, [])) of
+                                          {G1, []} -> {G1 ++ G, maps:remove(Idx, B)};
+                                          {G1, Kept} -> {G1 ++ G, B#{Idx => Kept}}
+                                      end
+                              end, {[], By}, Idxs),
+    Lost = lists:ukeysort(1, [{Cid, D, O} || {_, Cid} <- Gone, {D, O} <- [maps:get(Cid, C, none)]]),
+    {Lost, S#cells{cells = Cells1, by_body = By1, contacts = maps:without([Cid || {_, Cid} <- Gone], C)}}.
+
+%% A writer's segments (newest first) end at R at the latest.
+truncate([{Ta, _, _, _} | Rest], R) when Ta > R -> truncate(Rest, R);
+truncate([{Ta, Tb, W, Ms} | Rest], R) when Tb > R -> [{Ta, R, W, [{I, A, min(B, R)} || {I, A, B} <- Ms, A =< R]} | Rest];
+truncate(Segs, _R) -> Segs.
+

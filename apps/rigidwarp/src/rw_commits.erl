@@ -1,0 +1,54 @@
+%% The committed states of one simulation, in two shared ETS tables: each
+%% body's record at each sync point it has committed ({{T, Idx}, Frame},
+%% ordered by time, then idx) and, per sync point, how many bodies have
+%% committed it. An entity commits a sync point once nothing it awaits is
+%% about an earlier time, and withdraws it when it rolls back; the commit
+%% that completes a sync point tells the GVT process, which checks the
+%% count again before it passes it (a rollback may have taken commits
+%% back meanwhile).
+-module(rw_commits).
+-include("rigidwarp.hrl").
+-export([commit/3, withdraw/3, complete/2, forget/2, select_at/2, delete_at/2]).
+
+%% Commit the records of an entity's members at sync point T.
+-spec commit(#sim{}, non_neg_integer(), [{non_neg_integer(), rw_reference:body_frame()}]) -> ok.
+commit(#sim{records = Records, counts = Counts, n = N, gvt = Gvt}, T, Rows) ->
+    true = ets:insert(Records, [{{T, Idx}, Frame} || {Idx, Frame} <- Rows]),
+    case ets:update_counter(Counts, T, length(Rows), {T, 0}) of
+        N -> Gvt ! {complete, T}, ok;
+        _ -> ok
+    end.
+
+%% Take back the commits of members Idxs at the sync points Times.
+-spec withdraw(#sim{}, [non_neg_integer()], [non_neg_integer()]) -> ok.
+withdraw(#sim{records = Records, counts = Counts}, Times, Idxs) ->
+    N = length(Idxs),
+    lists:foreach(fun(T) ->
+                          _ = ets:update_counter(Counts, T, -N),
+                          lists:foreach(fun(Idx) -> true = ets:delete(Records, {T, Idx}) end, Idxs)
+                  end, Times).
+
+%% Has every body committed sync point T?
+-spec complete(#sim{}, non_neg_integer()) -> boolean().
+complete(#sim{counts = Counts, n = N}, T) ->
+    case ets:lookup(Counts, T) of
+        [{_, N}] -> true;
+        _ -> false
+    end.
+
+%% GVT has passed T: its count is no longer needed.
+-spec forget(#sim{}, non_neg_integer()) -> ok.
+forget(#sim{counts = Counts}, T) ->
+    true = ets:delete(Counts, T),
+    ok.
+
+%% The records committed at sync point T, in idx order: one per body once
+%% GVT has passed T.
+-spec select_at(non_neg_integer(), ets:tid()) -> [rw_reference:body_frame()].
+select_at(T, Records) -> ets:select(Records, [{{{T, '_'}, '$1'}, [], ['$1']}]).
+
+%% Forget the records of sync point T.
+-spec delete_at(non_neg_integer(), ets:tid()) -> ok.
+delete_at(T, Records) ->
+    _ = ets:select_delete(Records, [{{{T, '_'}, '_'}, [], [true]}]),
+    ok.

@@ -1,0 +1,65 @@
+%% The ring of the latest committed frames of one simulation, an ETS table
+%% that the GVT process writes and anyone reads (the shell API, the viewer)
+%% without asking a process. The ring names the frame times it holds; their
+%% records stay where the bodies committed them (rw_commits) until the
+%% frame leaves the ring, and readers select them from there (a copy out
+%% of the records table and one into the ring took the GVT process a third
+%% of its time on Parallel 500).
+%%
+%% Keys: {t, Ms} => Tick for each frame held (its time in ms, an integer
+%% when whole, rw_scene:whole_ms/1, and in ticks); {slot, K} => Ms for the
+%% K-th frame modulo the ring's size; latest => Ms; source => {Records, N},
+%% the records table and the number of bodies in a frame.
+-module(rw_ring).
+-export([init/3, write/5, latest/1, frame_at/2, frames_after/3]).
+
+%% A ring over the records table Records of a simulation of N bodies.
+-spec init(ets:tid(), ets:tid(), pos_integer()) -> ok.
+init(Ring, Records, N) ->
+    true = ets:insert(Ring, {source, Records, N}),
+    ok.
+
+%% Frame time Tick (Ms in ms), the K-th frame (from 0), enters a ring of
+%% Size frames; the oldest leaves it once the ring is full, and its records
+%% go.
+-spec write(ets:tid(), number(), non_neg_integer(), non_neg_integer(), pos_integer()) -> ok.
+write(Ring, Ms, Tick, K, Size) ->
+    _ = case K >= Size of
+            true ->
+                [{_, OldMs}] = ets:lookup(Ring, {slot, K rem Size}),
+                [{_, OldTick}] = ets:lookup(Ring, {t, OldMs}),
+                [{source, Records, _}] = ets:lookup(Ring, source),
+                true = ets:delete(Ring, {t, OldMs}),
+                rw_commits:delete_at(OldTick, Records);
+            false -> ok
+        end,
+    true = ets:insert(Ring, [{{t, Ms}, Tick}, {{slot, K rem Size}, Ms}, {latest, Ms}]),
+    ok.
+
+-spec latest(ets:tid()) -> rw_reference:frame() | none.
+latest(Ring) ->
+    case ets:lookup(Ring, latest) of
+        [{latest, T}] -> frame_at(Ring, T);
+        [] -> none
+    end.
+
+-spec frame_at(ets:tid(), number()) -> rw_reference:frame() | none.
+frame_at(Ring, T) ->
+    Ms = rw_scene:whole_ms(T),
+    case ets:lookup(Ring, {t, Ms}) of
+        [{_, Tick}] ->
+            [{source, Records, N}] = ets:lookup(Ring, source),
+            Bodies = rw_commits:select_at(Tick, Records),
+            %% a frame leaving the ring while it was read is gone
+            case length(Bodies) of
+                N -> {frame, Ms, Bodies};
+                _ -> none
+            end;
+        [] -> none
+    end.
+
+%% Up to Max frames of the ring after T ms, oldest first.
+-spec frames_after(ets:tid(), number(), pos_integer()) -> [rw_reference:frame()].
+frames_after(Ring, T, Max) ->
+    Ts = lists:sort(ets:select(Ring, [{{{t, '$1'}, '_'}, [{'>', '$1', T}], ['$1']}])),
+    [F || Ti <- lists:sublist(Ts, Max), F <- [frame_at(Ring, Ti)], F =/= none].

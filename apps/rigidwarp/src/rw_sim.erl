@@ -1,0 +1,61 @@
+%% The context of one Time Warp simulation (#sim{}, rigidwarp.hrl): built
+%% once from the scene, the options, the simulation's tables and its
+%% bucket pool, and handed to every process of the simulation as a start
+%% argument.
+-module(rw_sim).
+-include("rigidwarp.hrl").
+-export([new/5, for_bodies/1, lvt_slot/1, period/1]).
+-export_type([options/0]).
+
+-type options() :: #{groups => boolean(), group_max => pos_integer(),
+                     %% (tests) regroup points this many strides apart, groups of
+                     %% all bodies near each other however they move
+                     regroup_every => pos_integer(), grouping => persistent | eager,
+                     profile => boolean(), delay => {Seed :: integer(), MaxMs :: non_neg_integer()},
+                     atom() => term()}.
+
+%% The most bodies the engine steps as one contact group, by default: a
+%% group is one process, and groups should remain many enough to keep every
+%% scheduler busy.
+-define(DEFAULT_GROUP_MAX, 64).
+
+-spec new(#scene{}, rw_sim_tables:tables(), tuple(), rw_stats:counters(), options()) -> #sim{}.
+new(#scene{spheres = Spheres, duration = End, frame = Frame, stride = Stride} = Scene,
+    #{records := Records, counts := Counts, ring := Ring, owners := Owners, procs := Procs, met := Met},
+    Buckets, Stats, Opts) ->
+    Period = case {maps:get(groups, Opts, true), maps:find(regroup_every, Opts)} of
+                 {false, _} -> 0;
+                 {true, {ok, Every}} -> Every * Stride;
+                 {true, error} -> period(Scene)
+             end,
+    #sim{scene = Scene, n = length(Spheres), end_t = End, sync = rw_sync:new(Frame, Stride, End, Period),
+         buckets = Buckets, records = Records, counts = Counts, ring = Ring, owners = Owners, procs = Procs,
+         met = Met, stats = Stats, profile = maps:get(profile, Opts, false),
+         lvts = atomics:new(lvt_slot(lists:max([0 | [I || #sphere{idx = I} <- Spheres]])), [{signed, false}]),
+         gvt_now = gvt_now(), group_max = maps:get(group_max, Opts, ?DEFAULT_GROUP_MAX),
+         grouping = maps:get(grouping, Opts, persistent), delay = maps:get(delay, Opts, none)}.
+
+%% What a body holds: not the whole scene's bodies, which it never reads
+%% (a copy per body fills the heaps).
+-spec for_bodies(#sim{}) -> #sim{}.
+for_bodies(#sim{scene = Scene} = Sim) -> Sim#sim{scene = Scene#scene{spheres = [], initial = []}}.
+
+%% Where body Idx publishes its LVT in #sim.lvts: one 64-byte cache line
+%% per body, so that bodies on different cores do not share lines.
+-spec lvt_slot(non_neg_integer()) -> pos_integer().
+lvt_slot(Idx) -> Idx * 8 + 1.
+
+gvt_now() ->
+    Ref = atomics:new(1, [{signed, true}]),
+    ok = atomics:put(Ref, 1, -1),
+    Ref.
+
+%% Bodies may regroup at frame times at least 8 substeps apart (every
+%% frame in the paper's scenes: 10 ms), planned when GVT reaches the
+%% regroup point before (rw_gvt): a new persistent contact is stepped as
+%% one group one or two periods after its bodies have met often enough to
+%% say so. Frame times are sync points anyway; regroup points of their own
+%% (every 16 substeps) added a commit per body every 16 ms, 2-5 % of the
+%% time of scenes that never regroup.
+-spec period(#scene{}) -> pos_integer().
+period(#scene{substep = Dt, frame = F}) -> F * max(1, (8 * Dt + F - 1) div F).

@@ -1,0 +1,57 @@
+%% The sync calendar of a Time Warp simulation (pure): the times at which
+%% every entity commits its state and GVT may stop. Sync points are the
+%% frame times, the multiples of the stride, the regroup points (multiples
+%% of the period, when contact groups are on) and the end time. GVT
+%% advances from one sync point to the next once every body has committed
+%% it; a body that waits for GVT asks to be woken at a sync point.
+-module(rw_sync).
+-export([new/4, is_sync/2, is_frame/2, after_gvt/2, last_before/2, end_t/1, frame/1, stride/1, period/1]).
+-export_type([calendar/0]).
+
+-record(cal, {
+    frame :: pos_integer(),          % ticks
+    stride :: pos_integer(),
+    end_t :: non_neg_integer(),
+    period :: non_neg_integer()      % regroup points; 0: no contact groups
+}).
+-opaque calendar() :: #cal{}.
+
+-spec new(pos_integer(), pos_integer(), non_neg_integer(), non_neg_integer()) -> calendar().
+new(Frame, Stride, End, Period) -> #cal{frame = Frame, stride = Stride, end_t = End, period = Period}.
+
+-spec end_t(calendar()) -> non_neg_integer().
+end_t(#cal{end_t = End}) -> End.
+
+-spec frame(calendar()) -> pos_integer().
+frame(#cal{frame = F}) -> F.
+
+-spec stride(calendar()) -> pos_integer().
+stride(#cal{stride = S}) -> S.
+
+-spec period(calendar()) -> non_neg_integer().
+period(#cal{period = P}) -> P.
+
+%% Bodies commit at every frame time and every multiple of the stride, so
+%% that GVT can always advance far enough for LVT_ub to reach the next one,
+%% and at every regroup point, where groups change once GVT is there.
+-spec is_sync(non_neg_integer(), calendar()) -> boolean().
+is_sync(T, #cal{frame = F, stride = S, end_t = End, period = P}) ->
+    T rem F =:= 0 orelse T rem S =:= 0 orelse T =:= End orelse (P > 0 andalso T rem P =:= 0).
+
+%% Frames are written at frame times and at the end only.
+-spec is_frame(non_neg_integer(), calendar()) -> boolean().
+is_frame(T, #cal{frame = F, end_t = End}) -> T rem F =:= 0 orelse T =:= End.
+
+%% The first sync point after G (G < 0: before the first frame, 0). GVT
+%% cannot pass it before every body has reached it.
+-spec after_gvt(integer(), calendar()) -> non_neg_integer().
+after_gvt(G, _Cal) when G < 0 -> 0;
+after_gvt(G, #cal{frame = F, stride = S, period = P, end_t = End}) ->
+    Regroup = case P of 0 -> End; _ -> (G div P + 1) * P end,
+    lists:min([(G div F + 1) * F, (G div S + 1) * S, Regroup, End]).
+
+%% The last frame time, multiple of the stride or regroup point at or
+%% before T.
+-spec last_before(non_neg_integer(), calendar()) -> non_neg_integer().
+last_before(T, #cal{frame = F, stride = S, period = P}) ->
+    max(max(T div F * F, T div S * S), case P of 0 -> 0; _ -> T div P * P end).

@@ -1,0 +1,141 @@
+%% Where a write to the TVHT goes (pure): an entity's step (each member's
+%% packed states, one per substep from T0 on) becomes one write payload
+%% per member, and for each cell a member's box touches during the step,
+%% the first and last substep at which it does, grouped by bucket in bucket
+%% order, the order in which the buckets are locked (Lemma 1).
+-module(rw_tvht_plan).
+-include("rigidwarp.hrl").
+-export([write/7, for_bucket/2, delete/1]).
+-export_type([plan/0, where/0]).
+
+%% Per bucket index, ascending: the cells written and the spans in them.
+-type plan() :: [{non_neg_integer(), [rw_hash:cell()], [rw_cells:span()]}].
+%% Where a write went: per bucket index, its cells.
+-type where() :: [{non_neg_integer(), [rw_hash:cell()]}].
+
+%% The write of an entity's step: Writer's members Spheres (a tuple, in
+%% member order) with their packed states Steps from T0 on, and its plan.
+-spec write(term(), non_neg_integer(), tuple(), [rw_states:packed()], #model{}, {float(), pos_integer()},
+            pos_integer()) -> {rw_cells:write(), plan()}.
+write(Writer, T0, Spheres, Steps, #model{ccd = Ccd}, {CellSize, Dt}, NBuckets) ->
+    Members = [member_write(Writer, element(K, Spheres), T0, Packed, Ccd)
+               || {K, Packed} <- lists:zip(lists:seq(1, length(Steps)), Steps)],
+    Write = {Writer, T0, maps:from_list([{Idx, Payload} || {{Idx, _, _, _, _, _} = Payload, _} <- Members]),
+             union([Bounds || {{_, _, _, _, _, Bounds}, _} <- Members])},
+    Plan = plan([{Idx, cell_spans(T0, Spans, CellSize, Dt)} || {{Idx, _, _, _, _, _}, Spans} <- Members], NBuckets),
+    {Write, Plan}.
+
+%% One member's payload for the buckets, and what cell_spans/4 needs.
+member_write(Writer, #sphere{idx = Idx, radius = R} = S, T0, Packed, Ccd) ->
+    Extents = case Ccd of
+                  false -> rw_states:extents(Packed);
+                  true ->
+                      {X, Y, Z} = rw_states:position(Packed, 1),
+                      extend(1, rw_states:count(Packed), Packed, X, Y, Z, X, Y, Z)
+              end,
+    {{Idx, Writer, S, T0, Packed, bounds(Extents, R)}, {Packed, Extents, R}}.
+
+%% A write as one bucket of several needs it: with the payloads of only
+%% the members in its cells (each bucket copies and keeps what it gets).
+-spec for_bucket(rw_cells:write(), [rw_cells:span()]) -> rw_cells:write().
+for_bucket({Writer, T0, Payloads, Bounds} = Write, Spans) ->
+    case lists:usort([Idx || {_, _, _, Ms} <- Spans, {Idx, _, _} <- Ms]) of
+        Idxs when length(Idxs) =:= map_size(Payloads) -> Write;
+        Idxs -> {Writer, T0, maps:with(Idxs, Payloads), Bounds}
+    end.
+
+%% The buckets and cells holding the writes Where (of states to delete), in
+%% bucket order.
+-spec delete(where()) -> [{non_neg_integer(), [rw_hash:cell()]}].
+delete(Where) ->
+    ByBucket = lists:foldl(fun({B, Cells}, Acc) -> maps:update_with(B, fun(Cs) -> Cells ++ Cs end, Cells, Acc) end,
+                           #{}, Where),
+    [{B, lists:usort(Cells)} || {B, Cells} <- lists:sort(maps:to_list(ByBucket))].
+
+%% The box around boxes.
+union([{X0, Y0, Z0, X1, Y1, Z1} | Rest]) ->
+    lists:foldl(fun({A0, B0, C0, A1, B1, C1}, {U0, V0, W0, U1, V1, W1}) ->
+                        {min(A0, U0), min(B0, V0), min(C0, W0), max(A1, U1), max(B1, V1), max(C1, W1)}
+                end, {X0, Y0, Z0, X1, Y1, Z1}, Rest).
+
+%% A box that holds the sphere at every state of a step (swept over each
+%% substep with CCD), padded against rounding: the buckets skip the
+%% narrowphase for two writes whose boxes are apart.
+bounds({X0, Y0, Z0, X1, Y1, Z1}, R) ->
+    Pad = R + 1.0e-9 * (R + lists:max([abs(X0), abs(Y0), abs(Z0), abs(X1), abs(Y1), abs(Z1)])),
+    {X0 - Pad, Y0 - Pad, Z0 - Pad, X1 + Pad, Y1 + Pad, Z1 + Pad}.
+
+%% The extents of the positions, swept over each substep (CCD: the packed
+%% states hold the displacements).
+extend(I, N, _Packed, X0, Y0, Z0, X1, Y1, Z1) when I > N -> {X0, Y0, Z0, X1, Y1, Z1};
+extend(I, N, Packed, X0, Y0, Z0, X1, Y1, Z1) ->
+    {X, Y, Z} = rw_states:position(Packed, I),
+    {DX, DY, DZ} = rw_states:displacement(Packed, I),
+    {Xa, Ya, Za} = {min(X, X + DX), min(Y, Y + DY), min(Z, Z + DZ)},
+    {Xb, Yb, Zb} = {max(X, X + DX), max(Y, Y + DY), max(Z, Z + DZ)},
+    extend(I + 1, N, Packed, min(X0, Xa), min(Y0, Ya), min(Z0, Za), max(X1, Xb), max(Y1, Yb), max(Z1, Zb)).
+
+%% For each cell a member's box (swept with CCD) touches during the step,
+%% the first and last substep at which it does. The box around all of the
+%% step's boxes is the box of its extents padded by R (rounding is
+%% monotonic). When that is the first state's box, every state keeps its
+%% cells and the step is one run; when it holds at most twice as many
+%% cells, one run over all of them is still cheaper than following each
+%% state (a bucket tests a pair's distance at every substep anyway, so a
+%% wider span adds candidates, never contacts). Otherwise (a fast body)
+%% cells are enumerated only when the box changes, and a box is hashed
+%% again only when it leaves the region that keeps its cells.
+cell_spans(T0, {Packed, {X0, Y0, Z0, X1, Y1, Z1}, R}, C, Dt) ->
+    Box = rw_hash:box(aabb(Packed, 1, R), C),
+    All = rw_hash:box({{X0 - R, Y0 - R, Z0 - R}, {X1 + R, Y1 + R, Z1 + R}}, C),
+    N = rw_states:count(Packed),
+    case All =:= Box orelse rw_hash:box_size(All) =< 2 * rw_hash:box_size(Box) of
+        true -> add_run(All, T0, T0 + (N - 1) * Dt, #{});
+        false -> spans(2, N, Packed, T0 + Dt, Box, rw_hash:region(Box, C), T0, T0, {C, R, Dt}, #{})
+    end.
+
+%% State I of N of the step (at substep T) and the rest.
+spans(I, N, _Packed, _T, Box, _Region, Ta, Tb, _CRDt, Acc) when I > N ->
+    add_run(Box, Ta, Tb, Acc);
+spans(I, N, Packed, T, Box, Region, Ta, Tb, {C, R, Dt} = CRDt, Acc) ->
+    AABB = aabb(Packed, I, R),
+    case rw_hash:in_region(AABB, Region) of
+        true -> spans(I + 1, N, Packed, T + Dt, Box, Region, Ta, T, CRDt, Acc);
+        false ->
+            case rw_hash:box(AABB, C) of
+                Box -> spans(I + 1, N, Packed, T + Dt, Box, Region, Ta, T, CRDt, Acc);
+                New -> spans(I + 1, N, Packed, T + Dt, New, rw_hash:region(New, C), T, T, CRDt,
+                             add_run(Box, Ta, Tb, Acc))
+            end
+    end.
+
+add_run(Box, Ta, Tb, Acc) ->
+    lists:foldl(fun(C, A) -> case A of
+                                 #{C := {First, _}} -> A#{C => {First, Tb}};
+                                 _ -> A#{C => {Ta, Tb}}
+                             end
+                end, Acc, rw_hash:box_cells(Box)).
+
+%% The box around state I of a step (swept over its substep with CCD).
+aabb(Packed, I, R) ->
+    case rw_states:displacement(Packed, I) of
+        undefined -> rw_shape:sphere_aabb(rw_states:position(Packed, I), R);
+        Disp -> rw_shape:swept_aabb(rw_states:position(Packed, I), Disp, R)
+    end.
+
+%% The members' cell spans (Idx and Cell => {Ta, Tb}) by cell and bucket,
+%% in bucket order (the lock order).
+plan(MemberSpans, NB) ->
+    ByCell = lists:foldl(fun({Idx, Spans}, Acc) ->
+                                 maps:fold(fun(Cell, {Ta, Tb}, A) ->
+                                                   maps:update_with(Cell, fun(L) -> [{Idx, Ta, Tb} | L] end,
+                                                                    [{Idx, Ta, Tb}], A)
+                                           end, Acc, Spans)
+                         end, #{}, MemberSpans),
+    ByBucket = maps:fold(fun(Cell, [{_, Ta0, Tb0} | _] = Ms, Acc) ->
+                                 {Ta, Tb} = lists:foldl(fun({_, A, B}, {L, H}) -> {min(A, L), max(B, H)} end,
+                                                        {Ta0, Tb0}, Ms),
+                                 maps:update_with(rw_hash:bucket(Cell, NB), fun(L) -> [{Cell, Ta, Tb, Ms} | L] end,
+                                                  [{Cell, Ta, Tb, Ms}], Acc)
+                         end, #{}, ByCell),
+    [{B, lists:sort([C || {C, _, _, _} <- Spans]), Spans} || {B, Spans} <- lists:sort(maps:to_list(ByBucket))].

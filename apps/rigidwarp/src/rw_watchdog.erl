@@ -1,0 +1,83 @@
+%% The watchdog of one simulation: if GVT does not advance for a while
+%% before the end, it logs, and tells the simulation's owner, a diagnosis
+%% naming every body's phase, LVT and awaited acknowledgements, the bodies
+%% holding GVT back first ({rw_stalled, GvtPid, GvtMs, Report}); then it
+%% stops watching. It reads GVT where the entities do (#sim.gvt_now) and
+%% asks nothing of the GVT process.
+-module(rw_watchdog).
+-behaviour(gen_server).
+-include("rigidwarp.hrl").
+-export([start_link/3, diagnose/1]).
+-export([init/1, handle_call/3, handle_cast/2, handle_info/2]).
+
+-record(w, {
+    sim :: #sim{},
+    owner :: pid() | undefined,
+    ms :: pos_integer(),
+    gvt = -1 :: integer(),            % GVT at the last look
+    since :: integer()                % when it last changed (monotonic ms)
+}).
+
+-spec start_link(#sim{}, pid() | undefined, pos_integer()) -> {ok, pid()}.
+start_link(Sim, Owner, Ms) -> gen_server:start_link(?MODULE, {Sim, Owner, Ms}, []).
+
+-spec init({#sim{}, pid() | undefined, pos_integer()}) -> {ok, #w{}}.
+init({Sim, Owner, Ms}) ->
+    _ = erlang:send_after(Ms div 4 + 1, self(), look),
+    {ok, #w{sim = Sim, owner = Owner, ms = Ms, since = now_ms()}}.
+
+-spec handle_call(term(), gen_server:from(), #w{}) -> {reply, ok, #w{}}.
+handle_call(_Req, _From, W) -> {reply, ok, W}.
+
+-spec handle_cast(term(), #w{}) -> {noreply, #w{}}.
+handle_cast(_Msg, W) -> {noreply, W}.
+
+-spec handle_info(term(), #w{}) -> {noreply, #w{}}.
+handle_info(look, #w{sim = #sim{gvt_now = Now, end_t = End} = Sim, gvt = Last, since = Since, ms = Ms} = W) ->
+    case atomics:get(Now, 1) of
+        End ->
+            {noreply, W};
+        Last ->
+            case now_ms() - Since > Ms of
+                true ->
+                    Report = diagnose(Sim),
+                    GvtMs = rw_scene:ms(Sim#sim.scene, Last),
+                    logger:error("rigidwarp: GVT stuck at ~p ms for ~b ms~n~ts", [GvtMs, Ms, Report]),
+                    _ = [Pid ! {rw_stalled, Sim#sim.gvt, GvtMs, Report} || Pid <- [W#w.owner], is_pid(Pid)],
+                    {noreply, W};
+                false ->
+                    _ = erlang:send_after(Ms div 4 + 1, self(), look),
+                    {noreply, W}
+            end;
+        G ->
+            _ = erlang:send_after(Ms div 4 + 1, self(), look),
+            {noreply, W#w{gvt = G, since = now_ms()}}
+    end;
+handle_info(_Msg, W) ->
+    {noreply, W}.
+
+%% Who waits on whom: each body's phase, LVT, what it awaits and how many
+%% messages it has not read yet, the bodies holding GVT back first.
+-spec diagnose(#sim{}) -> string().
+diagnose(#sim{procs = Procs}) ->
+    Lines = [try sys:get_state(B, 500) of
+                 {_Phase, D} -> rw_body:describe(D, unread(B))
+             catch
+                 exit:_ -> {-1, io_lib:format("~p: not answering (blocked in a bucket call?); ~ts", [B, queue(B)])}
+             end || {_, B} <- lists:sort(ets:tab2list(Procs))],
+    lists:flatten(["bodies by LVT, lowest (holding GVT back) first:\n"
+                   | [[L, $\n] || {_, L} <- lists:keysort(1, Lines)]]).
+
+unread(Pid) ->
+    case erlang:process_info(Pid, message_queue_len) of
+        {message_queue_len, N} -> N;
+        undefined -> 0
+    end.
+
+queue(Pid) ->
+    case erlang:process_info(Pid, message_queue_len) of
+        {message_queue_len, N} -> io_lib:format("~b unread messages", [N]);
+        undefined -> "dead"
+    end.
+
+now_ms() -> erlang:monotonic_time(millisecond).
