@@ -16,15 +16,7 @@ write(Buckets, Write, [{B, Cells, Spans}], Last) ->
 write(Buckets, {Writer, _, _, _} = Write, Plan, Last) ->
     Results = [rw_bucket:lock_probe(element(B + 1, Buckets), Cells, rw_tvht_plan:for_bucket(Write, Spans), Spans)
                || {B, Cells, Spans} <- Plan],
-    {UpTo, Hits} = case [R || R <- Results, R =/= none] of
-                       [] -> {Last, []};
-                       Found ->
-                           TStar = lists:min([T || {T, _} <- Found]),
-                           %% a pair found in several buckets counts once
-                           {TStar, [H || {_, H} <- lists:ukeysort(1, [{{I, element(1, E)}, H}
-                                                                       || {T, Hs} <- Found, T =:= TStar,
-                                                                          {I, E, _} = H <- Hs])]}
-                   end,
+    {UpTo, Hits} = rw_tvht_plan:first_contacts(Results, Last),
     Pairs = [{I, element(1, E)} || {I, E, _} <- Hits],
     Ids = rw_cells:contact_ids(UpTo, Pairs, [make_ref() || _ <- Pairs]),
     _ = [rw_bucket:commit_unlock(element(B + 1, Buckets), Writer, UpTo, Ids) || {B, _, _} <- Plan],

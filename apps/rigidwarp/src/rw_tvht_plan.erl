@@ -5,7 +5,7 @@
 %% order, the order in which the buckets are locked (Lemma 1).
 -module(rw_tvht_plan).
 -include("rigidwarp.hrl").
--export([write/7, for_bucket/2, delete/1]).
+-export([write/7, for_bucket/2, first_contacts/2, delete/1]).
 -export_type([plan/0, where/0]).
 
 %% Per bucket index, ascending: the cells written and the spans in them.
@@ -42,6 +42,20 @@ for_bucket({Writer, T0, Payloads, Bounds} = Write, Spans) ->
     case lists:usort([Idx || {_, _, _, Ms} <- Spans, {Idx, _, _} <- Ms]) of
         Idxs when length(Idxs) =:= map_size(Payloads) -> Write;
         Idxs -> {Writer, T0, maps:with(Idxs, Payloads), Bounds}
+    end.
+
+%% What the buckets of a plan found, together: the earliest substep with
+%% contacts (or Last) and the contacts there, a pair found in several
+%% buckets once.
+-spec first_contacts([{non_neg_integer(), [rw_cells:hit()]} | none], non_neg_integer()) ->
+          {non_neg_integer(), [rw_cells:hit()]}.
+first_contacts(Results, Last) ->
+    case [R || R <- Results, R =/= none] of
+        [] -> {Last, []};
+        Found ->
+            TStar = lists:min([T || {T, _} <- Found]),
+            {TStar, [H || {_, H} <- lists:ukeysort(1, [{{I, element(1, E)}, H}
+                                                        || {T, Hs} <- Found, T =:= TStar, {I, E, _} = H <- Hs])]}
     end.
 
 %% The buckets and cells holding the writes Where (of states to delete), in
