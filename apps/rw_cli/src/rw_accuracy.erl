@@ -33,7 +33,7 @@
 %% Stride changes only the speed: the frames, and so the accuracy, are the
 %% same for every stride.
 -module(rw_accuracy).
--include("rigidwarp.hrl").
+-include_lib("rigidwarp/include/rigidwarp.hrl").
 -export([sweep/1, check_scene/1, measure/3, metrics/3, pareto/1, csv/1, table/1, columns/0, num/1,
          default_scenes/0, default_substeps/0, default_strides/0]).
 -export_type([row/0, options/0, scene_spec/0]).
