@@ -316,19 +316,8 @@ crosses(P0, P1, {box, C, E, solid}) ->
 inside({X, Y, Z}, {LX, LY, LZ}, {HX, HY, HZ}) ->
     X > LX andalso X < HX andalso Y > LY andalso Y < HY andalso Z > LZ andalso Z < HZ.
 
-%% Slab test: does P + s D, s in [0, 1], meet the open box (Lo, Hi)?
-segment_hits_box(P, D, Lo, Hi) ->
-    slabs([1, 2, 3], P, D, Lo, Hi, 0.0, 1.0).
-
-slabs([], _P, _D, _Lo, _Hi, SMin, SMax) -> SMin < SMax;
-slabs([I | Rest], P, D, Lo, Hi, SMin, SMax) ->
-    Pi = element(I, P), Di = element(I, D), Li = element(I, Lo), Hi_ = element(I, Hi),
-    case Di == 0.0 of
-        true -> Pi > Li andalso Pi < Hi_ andalso slabs(Rest, P, D, Lo, Hi, SMin, SMax);
-        false ->
-            {A, B} = {(Li - Pi) / Di, (Hi_ - Pi) / Di},
-            slabs(Rest, P, D, Lo, Hi, max(SMin, min(A, B)), min(SMax, max(A, B)))
-    end.
+%% Does P + s D, s in [0, 1], meet the open box (Lo, Hi)?
+segment_hits_box(P, D, Lo, Hi) -> rw_narrow:segment_box(P, D, Lo, Hi, open) =/= none.
 
 %%% Pareto front, CSV and the table
 
