@@ -271,16 +271,12 @@ substep(P0s, P1s, Radius, Shapes) ->
     Fixture = [{fixture_depth(P1, R, Shape), crosses(P0, P1, Shape)}
                || {P0, P1, R} <- Bodies, Shape <- Shapes],
     %% sweep and prune on x over the span each sphere covers in the substep
-    Spans = lists:sort([{min(X0, X1) - R, max(X0, X1) + R, B}
-                        || {{X0, _, _}, {X1, _, _}, R} = B <- Bodies]),
-    Pair = candidate_pairs(Spans, []),
+    Spans = [{min(X0, X1) - R, K, max(X0, X1) + R}
+             || {K, {{X0, _, _}, {X1, _, _}, R}} <- lists:zip(lists:seq(1, length(Bodies)), Bodies)],
+    ByK = list_to_tuple(Bodies),
+    Pair = [pair(element(A, ByK), element(B, ByK)) || {A, B} <- rw_broadphase:sweep(Spans, spans)],
     {lists:max([0.0 | [D || {D, _} <- Fixture ++ Pair]]),
      length([x || {_, true} <- Fixture ++ Pair])}.
-
-candidate_pairs([], Acc) -> Acc;
-candidate_pairs([{_, Hi, A} | Rest], Acc) ->
-    Near = lists:takewhile(fun({Lo, _, _}) -> Lo =< Hi end, Rest),
-    candidate_pairs(Rest, [pair(A, B) || {_, _, B} <- Near] ++ Acc).
 
 pair({PA0, PA1, RA}, {PB0, PB1, RB}) ->
     D0 = rw_vec:sub(PB0, PA0),
