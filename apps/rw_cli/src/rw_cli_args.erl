@@ -3,7 +3,7 @@
 %% times in ms as people write them. A bad flag throws {usage, Message},
 %% which rw_cli:main/1 prints with exit code 2.
 -module(rw_cli_args).
--export([parse/1, pos_int/2, pos_ms/2, format_ms/1]).
+-export([parse/1, bad_flag/2, pos_int/2, pos_ms/2, format_ms/1]).
 
 -define(VALUE_FLAGS, ["--engine", "--schedulers", "--buckets", "--frames", "--until", "--substep",
                       "--stride", "--frame-ms", "--integrator", "--ccd", "--groups", "--group-max"]).
@@ -42,13 +42,18 @@ parse(["--groups", "on" | Rest], F, O, Q) -> parse(Rest, F, O#{groups => true}, 
 parse(["--groups", "off" | Rest], F, O, Q) -> parse(Rest, F, O#{groups => false}, Q);
 parse(["--groups", V | _], _, _, _) -> throw({usage, "--groups must be on or off, got " ++ V});
 parse(["--group-max", V | Rest], F, O, Q) -> parse(Rest, F, O#{group_max => pos_int("--group-max", V)}, Q);
-parse([[$- | _] = Flag | _], _, _, _) ->
-    case lists:member(Flag, ?VALUE_FLAGS) of
-        true -> throw({usage, Flag ++ " needs a value"});
-        false -> throw({usage, "unknown flag " ++ Flag})
-    end;
+parse([[$- | _] = Flag | _], _, _, _) -> bad_flag(Flag, ?VALUE_FLAGS);
 parse([File | Rest], undefined, O, Q) -> parse(Rest, File, O, Q);
 parse([Extra | _], _, _, _) -> throw({usage, "unexpected argument " ++ Extra}).
+
+%% A flag that a command's parser did not match: one of its ValueFlags given
+%% last (without its value), or a flag it does not know.
+-spec bad_flag(string(), [string()]) -> no_return().
+bad_flag(Flag, ValueFlags) ->
+    case lists:member(Flag, ValueFlags) of
+        true -> throw({usage, Flag ++ " needs a value"});
+        false -> throw({usage, "unknown flag " ++ Flag})
+    end.
 
 %% A time in ms: an integer, or a decimal such as 0.5 (the scene checks
 %% that it is a whole number of microseconds).

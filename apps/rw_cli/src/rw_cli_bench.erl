@@ -62,11 +62,7 @@ parse(["--out", V | Rest], O) ->
 parse(["--plot", V | Rest], O) ->
     lists:suffix(".png", V) orelse throw({usage, "--plot must name a .png file, got " ++ V}),
     parse(Rest, O#{plot => V});
-parse([[$- | _] = Flag | _], _) ->
-    case lists:member(Flag, ?VALUE_FLAGS) of
-        true -> throw({usage, Flag ++ " needs a value"});
-        false -> throw({usage, "unknown flag " ++ Flag})
-    end;
+parse([[$- | _] = Flag | _], _) -> rw_cli_args:bad_flag(Flag, ?VALUE_FLAGS);
 parse([Extra | _], _) -> throw({usage, "unexpected argument " ++ Extra}).
 
 items(Flag, V) ->
