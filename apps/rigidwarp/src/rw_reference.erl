@@ -105,10 +105,12 @@ pair_contact(#sphere{radius = RA}, #st{p = PA}, #sphere{radius = RB}, #st{p = PB
 
 %% Pairs (lower position first) whose boxes share a cell of the grid.
 candidate_pairs(Bodies, States, Disp, Cell) ->
-    Boxes = [{K, case Disp of
-                     undefined -> rw_shape:sphere_aabb(P, R);
-                     _ -> rw_shape:swept_aabb(P, element(K, Disp), R)
-                 end}
-             || K <- lists:seq(1, tuple_size(Bodies)),
-                #sphere{radius = R} <- [element(K, Bodies)], #st{p = P} <- [element(K, States)]],
-    lists:sort(rw_broadphase:grid(Boxes, Cell)).
+    BoxOf = fun(K) ->
+                    #sphere{radius = R} = element(K, Bodies),
+                    #st{p = P} = element(K, States),
+                    case Disp of
+                        undefined -> rw_shape:sphere_aabb(P, R);
+                        _ -> rw_shape:swept_aabb(P, element(K, Disp), R)
+                    end
+            end,
+    lists:sort(rw_broadphase:grid(tuple_size(Bodies), BoxOf, Cell)).

@@ -353,9 +353,10 @@ with_rotation(Spheres, #model{rotation = false}) ->
 
 %% No two spheres may overlap at the start, nor a sphere and a fixture.
 no_overlaps(Spheres, Fixtures, CellSize) ->
-    ByIdx = maps:from_list([{Idx, S} || {#sphere{idx = Idx}, _, _} = S <- Spheres]),
-    Boxes = [{Idx, rw_shape:sphere_aabb(Pos, R)} || {#sphere{idx = Idx, radius = R}, #st{p = Pos}, _} <- Spheres],
-    [overlap(maps:get(A, ByIdx), maps:get(B, ByIdx)) || {A, B} <- rw_broadphase:grid(Boxes, CellSize)],
+    ByPos = list_to_tuple(Spheres),
+    BoxOf = fun(K) -> {#sphere{radius = R}, #st{p = Pos}, _} = element(K, ByPos), rw_shape:sphere_aabb(Pos, R) end,
+    [overlap(element(A, ByPos), element(B, ByPos))
+     || {A, B} <- rw_broadphase:grid(tuple_size(ByPos), BoxOf, CellSize)],
     [fixture_overlap(S, F) || S <- Spheres, F <- Fixtures],
     ok.
 

@@ -11,8 +11,8 @@ nothing_to_pair_test() ->
     ?assertEqual([], rw_broadphase:sweep([], {distance, 1.0})),
     ?assertEqual([], rw_broadphase:sweep([s(a, 0.0, 0.0, 0.0, 2.0)], {skin, 0.1})),
     ?assertEqual([], rw_broadphase:sweep([], spans)),
-    ?assertEqual([], rw_broadphase:grid([], 1.0)),
-    ?assertEqual([], rw_broadphase:grid([{a, {{0.0, 0.0, 0.0}, {1.0, 1.0, 1.0}}}], 1.0)).
+    ?assertEqual([], rw_broadphase:grid(0, fun(_) -> error(no_box) end, 1.0)),
+    ?assertEqual([], rw_broadphase:grid(1, fun(1) -> {{0.0, 0.0, 0.0}, {1.0, 1.0, 1.0}} end, 1.0)).
 
 distance_test() ->
     Items = [s(3, 0.0, 0.0, 0.0, 2.0), s(1, 0.0, 1.2, 0.0, 2.0), s(2, 5.0, 0.0, 0.0, 2.0)],
@@ -48,9 +48,10 @@ spans_test() ->
 %% Boxes that share two cells pair once; boxes in neighbouring cells do
 %% not pair (the grid knows cells, not distances).
 grid_test() ->
-    Boxes = [{1, {{0.1, 0.1, 0.1}, {1.5, 0.5, 0.5}}},     % cells x 0 and 1
-             {2, {{0.2, 0.2, 0.2}, {1.2, 0.4, 0.4}}},     % cells x 0 and 1
-             {3, {{2.1, 0.1, 0.1}, {2.5, 0.5, 0.5}}},     % cell x 2
-             {4, {{1.9, 0.1, 0.1}, {2.0, 0.5, 0.5}}}],    % cells x 1 and 2
-    ?assertEqual([{1, 2}, {1, 4}, {2, 4}, {3, 4}], lists:sort(rw_broadphase:grid(Boxes, 1.0))),
-    ?assertEqual(4, length(rw_broadphase:grid(Boxes, 1.0))).
+    Boxes = {{{0.1, 0.1, 0.1}, {1.5, 0.5, 0.5}},      % cells x 0 and 1
+             {{0.2, 0.2, 0.2}, {1.2, 0.4, 0.4}},      % cells x 0 and 1
+             {{2.1, 0.1, 0.1}, {2.5, 0.5, 0.5}},      % cell x 2
+             {{1.9, 0.1, 0.1}, {2.0, 0.5, 0.5}}},     % cells x 1 and 2
+    Pairs = rw_broadphase:grid(4, fun(K) -> element(K, Boxes) end, 1.0),
+    ?assertEqual([{1, 2}, {1, 4}, {2, 4}, {3, 4}], lists:sort(Pairs)),
+    ?assertEqual(4, length(Pairs)).
