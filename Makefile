@@ -21,7 +21,7 @@ deps:
 build: deps
 	$(REBAR) escriptize
 
-# eunit + PropEr + common_test + xref + dialyzer, then one closing count line.
+# eunit + PropEr + common_test + xref + module graph + dialyzer, then one closing count line.
 test: build
 	@scripts/run-tests
 

@@ -105,19 +105,12 @@ pair_contact(#sphere{radius = RA}, #st{p = PA}, #sphere{radius = RB}, #st{p = PB
 
 %% Pairs (lower position first) whose boxes share a cell of the grid.
 candidate_pairs(Bodies, States, Disp, Cell) ->
-    Grid = lists:foldl(
-             fun(K, G) ->
-                     #sphere{radius = R} = element(K, Bodies),
-                     #st{p = P} = element(K, States),
-                     Box = case Disp of
-                               undefined -> rw_shape:sphere_aabb(P, R);
-                               _ -> rw_shape:swept_aabb(P, element(K, Disp), R)
-                           end,
-                     lists:foldl(fun(C, G1) -> maps:update_with(C, fun(L) -> [K | L] end, [K], G1) end,
-                                 G, rw_hash:cells(Box, Cell))
-             end, #{}, lists:seq(1, tuple_size(Bodies))),
-    Pairs = maps:fold(fun(_, Ks, Acc) when length(Ks) < 2 -> Acc;
-                         (_, Ks, Acc) -> lists:foldl(fun(P, A) -> A#{P => true} end, Acc,
-                                                     [{A, B} || A <- Ks, B <- Ks, A < B])
-                      end, #{}, Grid),
-    lists:sort(maps:keys(Pairs)).
+    BoxOf = fun(K) ->
+                    #sphere{radius = R} = element(K, Bodies),
+                    #st{p = P} = element(K, States),
+                    case Disp of
+                        undefined -> rw_shape:sphere_aabb(P, R);
+                        _ -> rw_shape:swept_aabb(P, element(K, Disp), R)
+                    end
+            end,
+    lists:sort(rw_broadphase:grid(tuple_size(Bodies), BoxOf, Cell)).

@@ -148,40 +148,13 @@ edges(Bodies, Old, Met) ->
                 end, {[], []}, close(Bodies, Reach)).
 
 %% Pairs {{A, B}, Distance, SumOfRadii} closer than F x the sum of their
-%% radii: bodies sorted by x, each tested against those after it that are
-%% closer along x than the largest reach.
+%% radii, found by sweep and prune: within the largest reach along x, y and
+%% z. (The GVT process runs this at every regroup point, which every body
+%% waits for: rw_broadphase:sweep/2 is its hot loop.)
 close(Bodies, F) ->
     RMax = lists:max([0.0 | [R || {_, R, _, _} <- Bodies]]),
-    ByX = lists:sort([{X, I, R, Y, Z} || {I, R, {X, Y, Z}, _} <- Bodies]),
-    sweep(ByX, 2.0 * RMax * F, F, []).
-
-sweep([], _Reach, _F, Acc) -> Acc;
-sweep([{X, I, R, Y, Z} | Rest], Reach, F, Acc) ->
-    sweep(Rest, Reach, F, near(Rest, X + Reach, Reach, F, I, R, X, Y, Z, Acc)).
-
-%% (a hot loop of the GVT process, which every body waits for at each
-%% frame: coordinates are flat and typed so that the arithmetic stays in
-%% float registers; most bodies within reach along x are far along y or z,
-%% and two comparisons reject them before any distance is computed)
-near([{XB, IB, RB, YB, ZB} | Rest], XMax, Reach, F, IA, RA, XA, YA, ZA, Acc)
-  when XB < XMax, is_float(XB), is_float(YB), is_float(ZB), is_float(XA), is_float(YA), is_float(ZA),
-       is_float(Reach), is_float(RA), is_float(RB), is_float(F) ->
-    DY = YB - YA,
-    DZ = ZB - ZA,
-    case DY >= Reach orelse -DY >= Reach orelse DZ >= Reach orelse -DZ >= Reach of
-        true ->
-            near(Rest, XMax, Reach, F, IA, RA, XA, YA, ZA, Acc);
-        false ->
-            Sum = RA + RB,
-            DX = XB - XA,
-            %% (rw_vec:len/1 of the difference, operation for operation)
-            Dist = math:sqrt(DX * DX + DY * DY + DZ * DZ),
-            case Dist < F * Sum of
-                true -> near(Rest, XMax, Reach, F, IA, RA, XA, YA, ZA, [{{min(IA, IB), max(IA, IB)}, Dist, Sum} | Acc]);
-                false -> near(Rest, XMax, Reach, F, IA, RA, XA, YA, ZA, Acc)
-            end
-    end;
-near(_, _XMax, _Reach, _F, _IA, _RA, _XA, _YA, _ZA, Acc) -> Acc.
+    Reach = 2.0 * RMax * F,
+    rw_broadphase:sweep([{X, I, Y, Z, R, Reach} || {I, R, {X, Y, Z}, _} <- Bodies], {distance, F}).
 
 %% Union-find over idx => {Parent, Size} (the smaller tree goes under the
 %% larger); a union that would make a group larger than Max is skipped.

@@ -353,15 +353,10 @@ with_rotation(Spheres, #model{rotation = false}) ->
 
 %% No two spheres may overlap at the start, nor a sphere and a fixture.
 no_overlaps(Spheres, Fixtures, CellSize) ->
-    Grid = lists:foldl(
-             fun({#sphere{radius = R}, #st{p = Pos}, _} = S, G) ->
-                     lists:foldl(fun(C, G1) -> maps:update_with(C, fun(L) -> [S | L] end, [S], G1) end,
-                                 G, rw_hash:cells(rw_shape:sphere_aabb(Pos, R), CellSize))
-             end, #{}, Spheres),
-    maps:foreach(
-      fun(_Cell, InCell) ->
-              [overlap(A, B) || A <- InCell, B <- InCell, element(2, element(1, A)) < element(2, element(1, B))]
-      end, Grid),
+    ByPos = list_to_tuple(Spheres),
+    BoxOf = fun(K) -> {#sphere{radius = R}, #st{p = Pos}, _} = element(K, ByPos), rw_shape:sphere_aabb(Pos, R) end,
+    [overlap(element(A, ByPos), element(B, ByPos))
+     || {A, B} <- rw_broadphase:grid(tuple_size(ByPos), BoxOf, CellSize)],
     [fixture_overlap(S, F) || S <- Spheres, F <- Fixtures],
     ok.
 

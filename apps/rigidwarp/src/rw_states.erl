@@ -16,7 +16,7 @@
 -export_type([packed/0, extents/0]).
 
 %% The box of the positions: {X0, Y0, Z0, X1, Y1, Z1}.
--type extents() :: {float(), float(), float(), float(), float(), float()}.
+-type extents() :: rw_shape:box6().
 -opaque packed() :: {RecordBytes :: pos_integer(), Rotation :: boolean(), Ccd :: boolean(), binary(),
                      extents(), Reach :: float() | undefined}.
 

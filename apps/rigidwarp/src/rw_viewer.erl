@@ -13,7 +13,7 @@
 -export([scene_json/1, frames_after/3, status/1]).
 -export_type([source/0, server/0]).
 
--type source() :: {live, rigidwarp:sim()} | {playback, #scene{}, [rw_reference:frame()]}.
+-type source() :: {live, rw_timewarp:handle()} | {playback, #scene{}, [rw_reference:frame()]}.
 -opaque server() :: #{pid := pid(), port := inet:port_number(), host := string()}.
 -type options() :: #{port => inet:port_number(), bind => inet:ip4_address()}.
 
@@ -112,18 +112,27 @@ scene({playback, S, _}) -> S.
 -spec frames_after(source(), number(), pos_integer()) -> [rw_reference:frame()].
 frames_after({playback, _, Frames}, T, Max) ->
     lists:sublist([Fr || {frame, FT, _} = Fr <- Frames, FT > T], min(Max, ?MAX_FRAMES_PER_CALL));
-frames_after({live, Sim}, T, Max) ->
-    case rigidwarp:frames_after(Sim, T, min(Max, ?MAX_FRAMES_PER_CALL)) of
-        Frames when is_list(Frames) -> Frames;
-        {error, _} -> []
+frames_after({live, #{ring := Ring}}, T, Max) ->
+    case alive(fun() -> rw_gvt:frames_after(Ring, T, min(Max, ?MAX_FRAMES_PER_CALL)) end) of
+        stopped -> [];
+        Frames -> Frames
     end.
 
 -spec status(source()) -> map().
 status({playback, Scene, Frames}) ->
     Last = case Frames of [] -> -1; _ -> element(2, lists:last(Frames)) end,
     #{gvt => Last, end_ms => min(rw_scene:duration_ms(Scene), max(Last, 0)), frames => length(Frames)};
-status({live, Sim}) ->
-    case rigidwarp:stats(Sim) of
-        #{} = Stats -> Stats;
-        {error, Msg} -> #{error => unicode:characters_to_binary(Msg)}
+status({live, #{gvt := Gvt} = Sim}) ->
+    case alive(fun() -> rw_timewarp:progress(Sim, rw_gvt:gvt(Gvt)) end) of
+        stopped -> #{error => <<"the simulation has been stopped">>};
+        Stats -> Stats
+    end.
+
+%% A stopped simulation's processes and tables are gone: the page keeps
+%% polling and is told so.
+alive(Fun) ->
+    try Fun()
+    catch
+        exit:{noproc, _} -> stopped;
+        error:badarg -> stopped
     end.

@@ -1,7 +1,7 @@
 %% The `rigidwarp` escript: batch runs of scene files.
 %% Exit codes: 0 ok, 2 bad input (flags or scene), 1 runtime failure.
 -module(rw_cli).
--export([main/1, parse/1, pos_int/2, pos_ms/2, format_ms/1]).
+-export([main/1]).
 -include_lib("rigidwarp/include/rigidwarp.hrl").
 
 -define(RUN_HELP,
@@ -70,9 +70,6 @@ commands:
 exit codes: 0 ok, 1 runtime failure, 2 bad input (the message names the field or flag)
 ").
 
--define(VALUE_FLAGS, ["--engine", "--schedulers", "--buckets", "--frames", "--until", "--substep",
-                      "--stride", "--frame-ms", "--integrator", "--ccd", "--groups", "--group-max"]).
-
 -spec main([string()]) -> no_return().
 main(Args) ->
     _ = logger:remove_handler(default),
@@ -113,7 +110,7 @@ command_help("snapshot") -> ?SNAPSHOT_HELP;
 command_help("bench") -> ?BENCH_HELP;
 command_help(Cmd) -> throw({usage, "unknown command " ++ Cmd}).
 
-command("run", Args) -> run(parse(Args));
+command("run", Args) -> run(rw_cli_args:parse(Args));
 command("validate", [File]) ->
     case rigidwarp:load(File, #{}) of
         {ok, _} -> io:format("~ts: ok~n", [File]), 0;
@@ -134,7 +131,8 @@ scenes(Dir) ->
     [case rigidwarp:load(F, #{}) of
          {ok, #scene{spheres = Spheres} = S} ->
              io:format("~-24ts ~5b bodies  ~5s ms  ~ts~n",
-                       [filename:basename(F), length(Spheres), format_ms(rw_scene:duration_ms(S)), summary_line(F)]);
+                       [filename:basename(F), length(Spheres), rw_cli_args:format_ms(rw_scene:duration_ms(S)),
+                        summary_line(F)]);
          {error, Msg} -> io:format("~-24ts INVALID: ~ts~n", [filename:basename(F), Msg])
      end || F <- Files],
     0.
@@ -150,77 +148,6 @@ summary_line(File) ->
                 false -> Text
             end;
         _ -> ""
-    end.
-
-%% Flags to {SceneFile, Options, Quiet}.
--spec parse([string()]) -> {string(), map(), boolean()}.
-parse(Args) -> parse(Args, undefined, #{}, false).
-
-parse([], undefined, _, _) -> throw({usage, "run needs a scene file"});
-parse([], File, Opts, Quiet) -> {File, Opts, Quiet};
-parse(["--quiet" | Rest], F, O, _) -> parse(Rest, F, O, true);
-parse(["--engine", "reference" | Rest], F, O, Q) -> parse(Rest, F, O#{engine => reference}, Q);
-parse(["--engine", "timewarp" | Rest], F, O, Q) -> parse(Rest, F, O#{engine => timewarp}, Q);
-parse(["--engine", E | _], _, _, _) -> throw({usage, "--engine must be timewarp or reference, got " ++ E});
-parse(["--schedulers", V | Rest], F, O, Q) ->
-    N = pos_int("--schedulers", V),
-    Max = erlang:system_info(schedulers),
-    N =< Max orelse throw({usage, lists:flatten(io_lib:format("--schedulers must be at most ~b here, got ~s",
-                                                              [Max, V]))}),
-    parse(Rest, F, O#{schedulers => N}, Q);
-parse(["--buckets", V | Rest], F, O, Q) -> parse(Rest, F, O#{buckets => pos_int("--buckets", V)}, Q);
-parse(["--frames", Out | Rest], F, O, Q) -> parse(Rest, F, O#{frames => Out}, Q);
-parse(["--until", V | Rest], F, O, Q) -> parse(Rest, F, O#{until => pos_ms("--until", V)}, Q);
-parse(["--substep", V | Rest], F, O, Q) -> parse(Rest, F, O#{substep => pos_ms("--substep", V)}, Q);
-parse(["--stride", V | Rest], F, O, Q) -> parse(Rest, F, O#{stride => pos_ms("--stride", V)}, Q);
-parse(["--frame-ms", V | Rest], F, O, Q) -> parse(Rest, F, O#{frame_ms => pos_ms("--frame-ms", V)}, Q);
-parse(["--integrator", V | Rest], F, O, Q) ->
-    Known = [atom_to_list(I) || I <- rw_integrate:integrators()],
-    lists:member(V, Known) orelse
-        throw({usage, lists:flatten(["--integrator must be one of ", lists:join(", ", Known), ", got ", V])}),
-    parse(Rest, F, O#{integrator => list_to_existing_atom(V)}, Q);
-parse(["--ccd", "on" | Rest], F, O, Q) -> parse(Rest, F, O#{ccd => true}, Q);
-parse(["--ccd", "off" | Rest], F, O, Q) -> parse(Rest, F, O#{ccd => false}, Q);
-parse(["--ccd", V | _], _, _, _) -> throw({usage, "--ccd must be on or off, got " ++ V});
-parse(["--groups", "on" | Rest], F, O, Q) -> parse(Rest, F, O#{groups => true}, Q);
-parse(["--groups", "off" | Rest], F, O, Q) -> parse(Rest, F, O#{groups => false}, Q);
-parse(["--groups", V | _], _, _, _) -> throw({usage, "--groups must be on or off, got " ++ V});
-parse(["--group-max", V | Rest], F, O, Q) -> parse(Rest, F, O#{group_max => pos_int("--group-max", V)}, Q);
-parse([[$- | _] = Flag | _], _, _, _) ->
-    case lists:member(Flag, ?VALUE_FLAGS) of
-        true -> throw({usage, Flag ++ " needs a value"});
-        false -> throw({usage, "unknown flag " ++ Flag})
-    end;
-parse([File | Rest], undefined, O, Q) -> parse(Rest, File, O, Q);
-parse([Extra | _], _, _, _) -> throw({usage, "unexpected argument " ++ Extra}).
-
-%% A time in ms: an integer, or a decimal such as 0.5 (the scene checks
-%% that it is a whole number of microseconds).
--spec pos_ms(string(), string()) -> number().
-pos_ms(Flag, V) ->
-    try list_to_integer(V) of
-        I when I > 0, I =< 1 bsl 40 -> I;
-        _ -> not_ms(Flag, V)
-    catch
-        error:badarg ->
-            try list_to_float(V) of
-                X when X > 0.0, X =< 1.0e12 -> X;
-                _ -> not_ms(Flag, V)
-            catch
-                error:badarg -> not_ms(Flag, V)
-            end
-    end.
-
--spec not_ms(string(), string()) -> no_return().
-not_ms(Flag, V) -> throw({usage, Flag ++ " must be a positive number of ms (such as 2 or 0.5), got " ++ V}).
-
--spec pos_int(string(), string()) -> pos_integer().
-pos_int(Flag, V) ->
-    try list_to_integer(V) of
-        I when I > 0, I =< 1 bsl 40 -> I;
-        _ -> throw({usage, Flag ++ " must be a positive integer, got " ++ V})
-    catch
-        error:badarg -> throw({usage, Flag ++ " must be a positive integer, got " ++ V})
     end.
 
 run({File, Opts, Quiet}) ->
@@ -275,16 +202,11 @@ progress_line(Total, #{gvt := G, realtime_factor := Rt} = P, Wall) ->
           end,
     Engine = case P of
                  #{max_lvt := MaxLvt, rollbacks := Rb} ->
-                     io_lib:format("  GVT lag ~s ms  rollbacks ~b", [format_ms(max(0, MaxLvt - G)), Rb]);
+                     io_lib:format("  GVT lag ~s ms  rollbacks ~b", [rw_cli_args:format_ms(max(0, MaxLvt - G)), Rb]);
                  _ -> ""
              end,
     lists:flatten(io_lib:format("rigidwarp: t=~s/~s ms  realtime x~.2f~s~s",
-                                [format_ms(max(G, 0)), format_ms(Total), float(Rt), Engine, Eta])).
-
-%% A time in ms as people write it: 20, 0.5.
--spec format_ms(number()) -> string().
-format_ms(T) when is_integer(T) -> integer_to_list(T);
-format_ms(T) -> float_to_list(T, [short]).
+                                [rw_cli_args:format_ms(max(G, 0)), rw_cli_args:format_ms(Total), float(Rt), Engine, Eta])).
 
 %% stderr on a terminal? (io:columns/0 cannot tell in an escript on OTP 25.)
 is_terminal() ->

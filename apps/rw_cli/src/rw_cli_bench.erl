@@ -14,7 +14,7 @@
 -spec bench([string()]) -> 0 | 1.
 bench(["accuracy" | Args]) -> accuracy(parse(Args, defaults()));
 bench(["machine"]) -> machine(3);
-bench(["machine", "--repeats", N]) -> machine(rw_cli:pos_int("--repeats", N));
+bench(["machine", "--repeats", N]) -> machine(rw_cli_args:pos_int("--repeats", N));
 bench(["machine" | _]) -> throw({usage, "bench machine takes only --repeats N"});
 bench([]) -> throw({usage, "bench needs a benchmark: accuracy or machine"});
 bench([Other | _]) -> throw({usage, "unknown benchmark " ++ Other ++ " (known: accuracy, machine)"}).
@@ -36,11 +36,11 @@ defaults() ->
 parse([], Opts) -> Opts;
 parse(["--quiet" | Rest], O) -> parse(Rest, O#{quiet => true});
 parse(["--scenes", V | Rest], O) -> parse(Rest, O#{scenes => scenes("--scenes", V)});
-parse(["--until", V | Rest], O) -> parse(Rest, O#{until => rw_cli:pos_ms("--until", V)});
+parse(["--until", V | Rest], O) -> parse(Rest, O#{until => rw_cli_args:pos_ms("--until", V)});
 parse(["--substeps", V | Rest], O) ->
-    parse(Rest, O#{substeps => lists:usort([rw_cli:pos_ms("--substeps", X) || X <- items("--substeps", V)])});
+    parse(Rest, O#{substeps => lists:usort([rw_cli_args:pos_ms("--substeps", X) || X <- items("--substeps", V)])});
 parse(["--strides", V | Rest], O) ->
-    parse(Rest, O#{strides => lists:usort([rw_cli:pos_ms("--strides", X) || X <- items("--strides", V)])});
+    parse(Rest, O#{strides => lists:usort([rw_cli_args:pos_ms("--strides", X) || X <- items("--strides", V)])});
 parse(["--integrators", V | Rest], O) ->
     Known = [atom_to_list(I) || I <- rw_integrate:integrators()],
     Ints = [case lists:member(X, Known) of
@@ -62,11 +62,7 @@ parse(["--out", V | Rest], O) ->
 parse(["--plot", V | Rest], O) ->
     lists:suffix(".png", V) orelse throw({usage, "--plot must name a .png file, got " ++ V}),
     parse(Rest, O#{plot => V});
-parse([[$- | _] = Flag | _], _) ->
-    case lists:member(Flag, ?VALUE_FLAGS) of
-        true -> throw({usage, Flag ++ " needs a value"});
-        false -> throw({usage, "unknown flag " ++ Flag})
-    end;
+parse([[$- | _] = Flag | _], _) -> rw_cli_args:bad_flag(Flag, ?VALUE_FLAGS);
 parse([Extra | _], _) -> throw({usage, "unexpected argument " ++ Extra}).
 
 items(Flag, V) ->
@@ -82,7 +78,7 @@ dedup(L) -> lists:reverse(lists:foldl(fun(X, Acc) -> case lists:member(X, Acc) o
 %% NAME (scenarios/NAME.json) or a file, each with an optional :UNTIL_MS.
 scenes(Flag, V) ->
     [case string:split(Item, ":", trailing) of
-         [Name, Ms] when Name =/= "" -> {scene_file(Name), rw_cli:pos_ms(Flag ++ " " ++ Name ++ ":", Ms)};
+         [Name, Ms] when Name =/= "" -> {scene_file(Name), rw_cli_args:pos_ms(Flag ++ " " ++ Name ++ ":", Ms)};
          _ -> scene_file(Item)
      end || Item <- items(Flag, V)].
 
@@ -124,7 +120,7 @@ accuracy(#{out := Csv, plot := Png, quiet := Quiet} = Opts) ->
 progress_line(N, #{scene := S, substep_ms := Dt, stride_ms := St, integrator := I, ccd := C,
                    realtime_factor := Rt, pos_err_max := E, missed := M}) ->
     io_lib:format("rigidwarp: [~b] ~ts substep ~s ms stride ~s ms ~s ccd ~s: realtime x~ts, position error ~ts m,"
-                  " ~b missed~n", [N, S, rw_cli:format_ms(Dt), rw_cli:format_ms(St), I,
+                  " ~b missed~n", [N, S, rw_cli_args:format_ms(Dt), rw_cli_args:format_ms(St), I,
                                    case C of true -> "on"; false -> "off" end,
                                    rw_accuracy:num(Rt), rw_accuracy:num(E), M]).
 

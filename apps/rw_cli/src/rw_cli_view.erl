@@ -13,7 +13,7 @@ view(Args) ->
               end,
     Source = case Rest of
                  ["--live" | RunArgs] ->
-                     {File, Opts, _Quiet} = rw_cli:parse(RunArgs),
+                     {File, Opts, _Quiet} = rw_cli_args:parse(RunArgs),
                      maps:get(engine, Opts, timewarp) =:= timewarp
                          orelse throw({usage, "view --live runs the timewarp engine only"}),
                      maps:is_key(frames, Opts) andalso throw({usage, "view --live does not take --frames"}),

@@ -273,38 +273,17 @@ within(K, States, Anchors, Drift, Disps, Disp0, Limit) ->
         false -> false
     end.
 
-%% Sweep along x: members sorted by x, each paired with those after it
-%% that are closer along x than the largest reach, then tested in full.
+%% The pairs closer than the sum of their radii plus the skin, by sweep and
+%% prune (rw_broadphase:sweep/2): each member against those within its
+%% radius plus the largest radius plus the skin along x, y and z.
 build(#island{spheres = Spheres, skin = Skin} = I, States) ->
     N = tuple_size(Spheres),
     Anchors = list_to_tuple([P || #st{p = P} <- tuple_to_list(States)]),
-    ByX = lists:sort([{X, K} || K <- lists:seq(1, N), {X, _, _} <- [element(K, Anchors)]]),
     RMax = lists:max([R || #sphere{radius = R} <- tuple_to_list(Spheres)]),
-    Pairs = sweep(ByX, Spheres, Anchors, Skin, RMax, []),
+    Items = [{X, K, Y, Z, R, R + RMax + Skin}
+             || K <- lists:seq(1, N), #sphere{radius = R} <- [element(K, Spheres)], {X, Y, Z} <- [element(K, Anchors)]],
+    Pairs = rw_broadphase:sweep(Items, {skin, Skin}),
     Scale = lists:max([rw_vec:max_abs(P) || P <- tuple_to_list(Anchors)]) + RMax + Skin,
     %% half the skin, less a margin far above the rounding of the positions
     Limit = 0.5 * Skin - 1.0e-9 * Scale,
     I#island{anchors = Anchors, pairs = Pairs, limit = Limit}.
-
-sweep([], _Spheres, _Anchors, _Skin, _RMax, Acc) -> Acc;
-sweep([{X, A} | Rest], Spheres, Anchors, Skin, RMax, Acc) ->
-    #sphere{radius = RA} = element(A, Spheres),
-    Reach = RA + RMax + Skin,
-    sweep(Rest, Spheres, Anchors, Skin, RMax, close(Rest, X + Reach, Reach, A, RA, element(A, Anchors), Spheres, Anchors, Skin, Acc)).
-
-%% The members after A in x order that are closer along x than Reach, and
-%% closer than the sum of radii plus the skin (most are rejected by their
-%% distance along y or z first).
-close([{XB, B} | Rest], XMax, Reach, A, RA, {_, YA, ZA} = PA, Spheres, Anchors, Skin, Acc) when XB < XMax ->
-    {_, YB, ZB} = PB = element(B, Anchors),
-    case abs(YB - YA) >= Reach orelse abs(ZB - ZA) >= Reach of
-        true -> close(Rest, XMax, Reach, A, RA, PA, Spheres, Anchors, Skin, Acc);
-        false ->
-            #sphere{radius = RB} = element(B, Spheres),
-            S = RA + RB + Skin,
-            case vlen2(vsub(PB, PA)) < S * S of
-                true -> close(Rest, XMax, Reach, A, RA, PA, Spheres, Anchors, Skin, [{min(A, B), max(A, B)} | Acc]);
-                false -> close(Rest, XMax, Reach, A, RA, PA, Spheres, Anchors, Skin, Acc)
-            end
-    end;
-close(_, _XMax, _Reach, _A, _RA, _PA, _Spheres, _Anchors, _Skin, Acc) -> Acc.

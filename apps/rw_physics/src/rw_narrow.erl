@@ -6,7 +6,7 @@
 -module(rw_narrow).
 -include("rw_physics.hrl").
 -export([sphere_sphere/4, swept_sphere_sphere/6, sphere_fixture/3, swept_sphere_fixture/4,
-         fixture/3, swept_fixture/4]).
+         fixture/3, swept_fixture/4, segment_box/5]).
 -export_type([feature_contact/0]).
 
 %% A fixture can touch a sphere at several features (a container's walls).
@@ -137,6 +137,15 @@ swept_sphere_fixture(P, D, R, {cylinder, C, Axis, CR, H}) ->
         Hit -> Hit
     end.
 
+%% Slab test: where the segment P + t D, t in [0, 1], enters the box from Lo
+%% to Hi: {TEnter, Axis}, Axis (0, 1 or 2) naming the slab it entered last
+%% (none when it starts inside every slab), or none when it misses. A closed
+%% box counts its surface (a segment that touches it meets it), an open box
+%% only its inside.
+-spec segment_box(rw_vec:vec(), rw_vec:vec(), rw_vec:vec(), rw_vec:vec(), closed | open) ->
+          {float(), 0..2 | none} | none.
+segment_box(P, D, Lo, Hi, Kind) -> slabs(0, P, D, Lo, Hi, 0.0, 1.0, none, Kind).
+
 %%% Internals
 
 unit_or_fallback(V) ->
@@ -253,7 +262,7 @@ any_perpendicular({AX, _, _} = Axis) ->
 swept_box(P, D, R, C, E) ->
     Lo = vsub(vsub(C, E), {R, R, R}),
     Hi = vadd(vadd(C, E), {R, R, R}),
-    case slabs(0, P, D, Lo, Hi, 0.0, 1.0, none) of
+    case segment_box(P, D, Lo, Hi, closed) of
         {TEnter, Axis} when TEnter > 0.0 ->
             Sign = case element(Axis + 1, D) > 0.0 of true -> 1.0; false -> -1.0 end,
             Gap = slab_gap(P, C, E, R),
@@ -262,18 +271,18 @@ swept_box(P, D, R, C, E) ->
             []
     end.
 
-slabs(3, _P, _D, _Lo, _Hi, TMin, TMax, Axis) ->
-    case TMin =< TMax of
+slabs(3, _P, _D, _Lo, _Hi, TMin, TMax, Axis, Kind) ->
+    case nonempty(TMin, TMax, Kind) of
         true -> {TMin, Axis};
         false -> none
     end;
-slabs(I, P, D, Lo, Hi, TMin, TMax, Axis) ->
+slabs(I, P, D, Lo, Hi, TMin, TMax, Axis, Kind) ->
     Pi = element(I + 1, P), Di = element(I + 1, D),
     Li = element(I + 1, Lo), Hi_ = element(I + 1, Hi),
     case Di == 0.0 of
         true ->
-            case Pi >= Li andalso Pi =< Hi_ of
-                true -> slabs(I + 1, P, D, Lo, Hi, TMin, TMax, Axis);
+            case within(Pi, Li, Hi_, Kind) of
+                true -> slabs(I + 1, P, D, Lo, Hi, TMin, TMax, Axis, Kind);
                 false -> none
             end;
         false ->
@@ -284,11 +293,17 @@ slabs(I, P, D, Lo, Hi, TMin, TMax, Axis) ->
                                  false -> {TMin, Axis}
                              end,
             TMax2 = min(TMax, TFar),
-            case TMin2 =< TMax2 of
-                true -> slabs(I + 1, P, D, Lo, Hi, TMin2, TMax2, Axis2);
+            case nonempty(TMin2, TMax2, Kind) of
+                true -> slabs(I + 1, P, D, Lo, Hi, TMin2, TMax2, Axis2, Kind);
                 false -> none
             end
     end.
+
+nonempty(TMin, TMax, closed) -> TMin =< TMax;
+nonempty(TMin, TMax, open) -> TMin < TMax.
+
+within(X, Lo, Hi, closed) -> X >= Lo andalso X =< Hi;
+within(X, Lo, Hi, open) -> X > Lo andalso X < Hi.
 
 slab_gap({PX, PY, PZ}, {CX, CY, CZ}, {EX, EY, EZ}, R) ->
     Closest = {clamp(PX, CX - EX, CX + EX), clamp(PY, CY - EY, CY + EY), clamp(PZ, CZ - EZ, CZ + EZ)},

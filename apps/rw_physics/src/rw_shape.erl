@@ -10,7 +10,9 @@
       | {cylinder, Centre :: rw_vec:vec(), Axis :: rw_vec:vec(), Radius :: float(), HalfLength :: float()}
       | {box, Centre :: rw_vec:vec(), HalfExtents :: rw_vec:vec(), solid | hollow}.
 -type aabb() :: {Min :: rw_vec:vec(), Max :: rw_vec:vec()}.
-%% A box as six numbers, flat for the narrowphase's hot comparisons.
+%% A box as six numbers, flat for hot comparisons: a fixture's bounding box,
+%% the box of a body's packed states (rw_states:extents()) and of a write to
+%% the TVHT (rw_bucket:bounds()).
 -type box6() :: {X0 :: float(), Y0 :: float(), Z0 :: float(), X1 :: float(), Y1 :: float(), Z1 :: float()}.
 
 %% A fixture with its bounding box. The box is padded far beyond rounding

@@ -284,3 +284,56 @@ swept_cylinder_test() ->
     ?assert(T > 0.425 andalso T =< 0.425 + 0.0625 / 10.0 + 1.0e-12),
     ?near_vec({1.0, 0.0, 0.0}, N),
     ?assertEqual([], rw_narrow:swept_sphere_fixture({0.0, 2.0, 0.0}, {10.0, 0.0, 0.0}, 0.25, Cyl)).
+
+%%% segment against box (slab test)
+
+-define(LO, {-1.0, -1.0, -1.0}).
+-define(HI, {1.0, 1.0, 1.0}).
+
+segment_box_enters_through_a_face_test() ->
+    ?assertEqual({0.25, 0}, rw_narrow:segment_box({-2.0, 0.0, 0.0}, {4.0, 0.0, 0.0}, ?LO, ?HI, closed)),
+    ?assertEqual({0.25, 0}, rw_narrow:segment_box({-2.0, 0.0, 0.0}, {4.0, 0.0, 0.0}, ?LO, ?HI, open)),
+    %% the last slab entered names the face
+    ?assertEqual({0.5, 1}, rw_narrow:segment_box({-1.5, -2.0, 0.0}, {2.0, 2.0, 0.0}, ?LO, ?HI, closed)).
+
+segment_box_starting_inside_test() ->
+    ?assertEqual({0.0, none}, rw_narrow:segment_box({0.0, 0.0, 0.0}, {5.0, 0.0, 0.0}, ?LO, ?HI, closed)),
+    ?assertEqual({0.0, none}, rw_narrow:segment_box({0.0, 0.0, 0.0}, {0.0, 0.0, 0.0}, ?LO, ?HI, open)).
+
+segment_box_misses_test() ->
+    ?assertEqual(none, rw_narrow:segment_box({-2.0, 0.0, 0.0}, {0.5, 0.0, 0.0}, ?LO, ?HI, closed)),
+    ?assertEqual(none, rw_narrow:segment_box({-2.0, 3.0, 0.0}, {4.0, 0.0, 0.0}, ?LO, ?HI, closed)),
+    ?assertEqual(none, rw_narrow:segment_box({-2.0, 0.0, 0.0}, {4.0, 6.0, 0.0}, ?LO, ?HI, closed)).
+
+%% Touching the surface meets the closed box, not the open one: ending on
+%% a face, or gliding along one.
+segment_box_surface_test() ->
+    ?assertEqual({1.0, 0}, rw_narrow:segment_box({-2.0, 0.0, 0.0}, {1.0, 0.0, 0.0}, ?LO, ?HI, closed)),
+    ?assertEqual(none, rw_narrow:segment_box({-2.0, 0.0, 0.0}, {1.0, 0.0, 0.0}, ?LO, ?HI, open)),
+    ?assertEqual({0.25, 0}, rw_narrow:segment_box({-2.0, 1.0, 0.0}, {4.0, 0.0, 0.0}, ?LO, ?HI, closed)),
+    ?assertEqual(none, rw_narrow:segment_box({-2.0, 1.0, 0.0}, {4.0, 0.0, 0.0}, ?LO, ?HI, open)).
+
+%% On random segments the open box meets only what the closed box meets,
+%% at the same place, and both agree with points sampled along the segment.
+segment_box_random_test() ->
+    Rand0 = rand:seed_s(exsss, 7),
+    lists:foldl(fun(_, R0) ->
+                        {[PX, PY, PZ, DX, DY, DZ], R1} = uniforms(6, R0, []),
+                        P = {4.0 * PX - 2.0, 4.0 * PY - 2.0, 4.0 * PZ - 2.0},
+                        D = {4.0 * DX - 2.0, 4.0 * DY - 2.0, 4.0 * DZ - 2.0},
+                        Closed = rw_narrow:segment_box(P, D, ?LO, ?HI, closed),
+                        Open = rw_narrow:segment_box(P, D, ?LO, ?HI, open),
+                        ?assert(Open =:= none orelse Open =:= Closed),
+                        Inside = [S || S <- [I / 64 || I <- lists:seq(0, 64)],
+                                       strictly_inside(rw_vec:madd(P, D, S))],
+                        Inside =:= [] orelse ?assertNotEqual(none, Open),
+                        R1
+                end, Rand0, lists:seq(1, 2000)),
+    ok.
+
+uniforms(0, R, Acc) -> {Acc, R};
+uniforms(N, R0, Acc) ->
+    {X, R1} = rand:uniform_s(R0),
+    uniforms(N - 1, R1, [X | Acc]).
+
+strictly_inside({X, Y, Z}) -> abs(X) < 1.0 andalso abs(Y) < 1.0 andalso abs(Z) < 1.0.

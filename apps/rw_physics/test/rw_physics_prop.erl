@@ -15,7 +15,8 @@
          prop_degenerate_input/0, prop_quat_integrate/0, prop_free_flight/0,
          prop_respond_is_ordered_fold/0, prop_container_is_six_walls/0,
          prop_fixture_box_skips_only_misses/0, prop_fixture_then_pair_energy/0,
-         prop_island_equals_all_pairs/0]).
+         prop_island_equals_all_pairs/0, prop_sweep_spheres_equals_all_pairs/0,
+         prop_sweep_spans_equals_all_pairs/0, prop_grid_equals_shared_cells/0]).
 %% generators, for use from a shell: proper_gen:pick(rw_physics_prop:pair_case())
 -export([position/0, far_vec/0, vec/0, direction/0, quat/0, sphere/1, model/0, state/1, pair_case/0,
          pair_case/1, fixture_probe/0]).
@@ -824,3 +825,107 @@ island_fixtures() ->
 shift({plane, N, Off}, C) -> {plane, N, Off + rw_vec:dot(N, C)};
 shift({cylinder, P, A, R, H}, C) -> {cylinder, rw_vec:add(P, C), A, R, H};
 shift({box, P, E, K}, C) -> {box, rw_vec:add(P, C), E, K}.
+
+%%% ------------------------------------------------------------------
+%%% Properties: broadphase
+%%% ------------------------------------------------------------------
+
+%% rw_broadphase:sweep/2 on spheres finds the pairs of a test of every pair,
+%% in the order it promises (the reverse of every pair taken in the order of
+%% the items sorted by x, then key): by distance within F x the sum of radii
+%% with rw_regroup's reach, and by squared distance within the sum plus a
+%% skin with rw_island's; around the origin, around 1e9, and on a lattice
+%% where many share an x.
+prop_sweep_spheres_equals_all_pairs() ->
+    ?FORALL({Spheres, F, Skin}, {broadphase_spheres(), oneof([1.0, 1.25, 3.0]), oneof([0.0, float(0.0, 1.0)])},
+            ?SAFE(begin
+                RMax = lists:max([0.0 | [R || {_, R, _} <- Spheres]]),
+                Regroup = [{X, K, Y, Z, R, 2.0 * RMax * F} || {K, R, {X, Y, Z}} <- Spheres],
+                Island = [{X, K, Y, Z, R, R + RMax + Skin} || {K, R, {X, Y, Z}} <- Spheres],
+                Distance = fun({XA, KA, YA, ZA, RA, _}, {XB, KB, YB, ZB, RB, _}) ->
+                                   Dist = math:sqrt(d2(XB - XA, YB - YA, ZB - ZA)),
+                                   [{{min(KA, KB), max(KA, KB)}, Dist, RA + RB} || Dist < F * (RA + RB)]
+                           end,
+                WithSkin = fun({XA, KA, YA, ZA, RA, _}, {XB, KB, YB, ZB, RB, _}) ->
+                                   S = RA + RB + Skin,
+                                   [{min(KA, KB), max(KA, KB)} || d2(XB - XA, YB - YA, ZB - ZA) < S * S]
+                           end,
+                GotD = rw_broadphase:sweep(Regroup, {distance, F}),
+                GotS = rw_broadphase:sweep(Island, {skin, Skin}),
+                ExpD = every_pair(Regroup, Distance),
+                ExpS = every_pair(Island, WithSkin),
+                ?WHENFAIL(report("distance: ~p pairs, expected ~p~nskin: ~p pairs, expected ~p",
+                                 [length(GotD), length(ExpD), length(GotS), length(ExpS)]),
+                          GotD =:= ExpD andalso GotS =:= ExpS)
+            end)).
+
+%% On spans, the pairs whose closed intervals overlap (touching included).
+prop_sweep_spans_equals_all_pairs() ->
+    ?FORALL(Spans, broadphase_spans(),
+            ?SAFE(begin
+                Overlap = fun({LoA, KA, HiA}, {LoB, KB, HiB}) ->
+                                  [{min(KA, KB), max(KA, KB)} || LoA =< HiB, LoB =< HiA]
+                          end,
+                Got = rw_broadphase:sweep(Spans, spans),
+                Expected = every_pair(Spans, Overlap),
+                ?WHENFAIL(report("~p pairs, expected ~p", [Got, Expected]), Got =:= Expected)
+            end)).
+
+%% rw_broadphase:grid/3 gives each pair whose boxes share a cell once: the
+%% pairs whose ranges of cells (rw_hash:box/2) meet on every axis.
+prop_grid_equals_shared_cells() ->
+    ?FORALL({Boxes, S}, {broadphase_boxes(), oneof([0.5, 1.0, float(0.3, 3.0)])},
+            ?SAFE(begin
+                ByK = list_to_tuple(Boxes),
+                Got = rw_broadphase:grid(tuple_size(ByK), fun(K) -> element(K, ByK) end, S),
+                Ranges = [{K, rw_hash:box(Box, S)} || {K, Box} <- enumerate(Boxes)],
+                Expected = lists:sort([{KA, KB}
+                                       || {KA, {AX0, AX1, AY0, AY1, AZ0, AZ1}} <- Ranges,
+                                          {KB, {BX0, BX1, BY0, BY1, BZ0, BZ1}} <- Ranges, KA < KB,
+                                          max(AX0, BX0) =< min(AX1, BX1), max(AY0, BY0) =< min(AY1, BY1),
+                                          max(AZ0, BZ0) =< min(AZ1, BZ1)]),
+                ?WHENFAIL(report("~p pairs, expected ~p", [Got, Expected]),
+                          lists:sort(Got) =:= Expected andalso length(Got) =:= length(Expected))
+            end)).
+
+%% Test(A, B) -> [Pair] for every pair of Items taken in the sweep's order,
+%% the last found first.
+every_pair(Items, Test) ->
+    Sorted = lists:sort(Items),
+    lists:reverse(lists:append([Test(A, B) || {I, A} <- enumerate(Sorted), {J, B} <- enumerate(Sorted), I < J])).
+
+enumerate(L) -> lists:zip(lists:seq(1, length(L)), L).
+
+d2(DX, DY, DZ) -> DX * DX + DY * DY + DZ * DZ.
+
+%% {Key, Radius, Centre}: up to 60 spheres, keys unique and in any order.
+broadphase_spheres() ->
+    ?LET({N, Origin, Size, Lattice}, {range(0, 60), oneof([{0.0, 0.0, 0.0}, far_vec()]),
+                                      oneof([1.0, 5.0, 30.0]), boolean()},
+         ?LET({Radii, Spots, Keys}, {vector(N, oneof([0.5, float(0.05, 1.0)])),
+                                     vector(N, broadphase_spot(Size, Lattice)), shuffled_keys(N)},
+              [{K, R, rw_vec:add(Origin, P)} || {K, R, P} <- lists:zip3(Keys, Radii, Spots)])).
+
+broadphase_spot(_Size, true) ->
+    ?LET({X, Y, Z}, {range(0, 6), range(0, 6), range(0, 2)}, {0.5 * X, 0.5 * Y, 0.5 * Z});
+broadphase_spot(Size, false) -> {float(0.0, Size), float(0.0, Size), float(0.0, Size)}.
+
+shuffled_keys(N) ->
+    ?LET(Weights, vector(N, float()), [K || {_, K} <- lists:sort(lists:zip(Weights, lists:seq(1, N)))]).
+
+%% {Lo, Key, Hi}: up to 60 intervals, some only a point, some on a lattice
+%% so that they touch.
+broadphase_spans() ->
+    ?LET(N, range(0, 60),
+         ?LET({Los, Widths, Keys}, {vector(N, oneof([float(-10.0, 10.0), ?LET(I, range(-10, 10), float(I))])),
+                                    vector(N, oneof([0.0, 1.0, float(0.0, 3.0)])), shuffled_keys(N)},
+              [{Lo, K, Lo + W} || {Lo, W, K} <- lists:zip3(Los, Widths, Keys)])).
+
+%% Up to 40 AABBs up to 3 units wide, some on cell borders.
+broadphase_boxes() ->
+    ?LET(N, range(0, 40),
+         ?LET({Mins, Sizes}, {vector(N, oneof([vec_in(-5.0, 5.0), ?LET(I, range(-5, 5), {float(I), 0.0, 0.5})])),
+                              vector(N, {float(0.0, 3.0), float(0.0, 3.0), float(0.0, 3.0)})},
+              [{Min, rw_vec:add(Min, Size)} || {Min, Size} <- lists:zip(Mins, Sizes)])).
+
+vec_in(Lo, Hi) -> {float(Lo, Hi), float(Lo, Hi), float(Lo, Hi)}.

@@ -7,7 +7,8 @@
          friction_coulomb/1, pair_symmetric_and_repeatable/1, hash_covers_aabb/1, hash_region_keeps_box/1, normals_unit/1,
          depth_along_normal/1, cylinder_depth_along_normal/1, swept_toi/1, degenerate_input/1,
          quat_integrate/1, free_flight/1, respond_is_ordered_fold/1, container_is_six_walls/1,
-         fixture_box_skips_only_misses/1, fixture_then_pair_energy/1, island_equals_all_pairs/1]).
+         fixture_box_skips_only_misses/1, fixture_then_pair_energy/1, island_equals_all_pairs/1,
+         sweep_spheres_equals_all_pairs/1, sweep_spans_equals_all_pairs/1, grid_equals_shared_cells/1]).
 
 %% Tests per property; the whole suite takes a few seconds.
 -define(NUMTESTS, 1000).
@@ -18,7 +19,8 @@ all() -> [pair_momentum, pair_angular_momentum, pair_energy, fixture_energy, res
           pair_symmetric_and_repeatable, hash_covers_aabb, hash_region_keeps_box, normals_unit, depth_along_normal,
           cylinder_depth_along_normal, swept_toi, degenerate_input, quat_integrate, free_flight,
           respond_is_ordered_fold, container_is_six_walls, fixture_box_skips_only_misses,
-          fixture_then_pair_energy, island_equals_all_pairs].
+          fixture_then_pair_energy, island_equals_all_pairs, sweep_spheres_equals_all_pairs,
+          sweep_spans_equals_all_pairs, grid_equals_shared_cells].
 
 end_per_testcase(_Case, _Config) ->
     proper:global_state_erase(),
@@ -40,6 +42,9 @@ container_is_six_walls(_) -> check(container_is_six_walls).
 fixture_box_skips_only_misses(_) -> check(fixture_box_skips_only_misses).
 fixture_then_pair_energy(_) -> check(fixture_then_pair_energy).
 island_equals_all_pairs(_) -> check(island_equals_all_pairs).
+sweep_spheres_equals_all_pairs(_) -> check(sweep_spheres_equals_all_pairs).
+sweep_spans_equals_all_pairs(_) -> check(sweep_spans_equals_all_pairs).
+grid_equals_shared_cells(_) -> check(grid_equals_shared_cells).
 pair_angular_momentum(_) -> check(pair_angular_momentum).
 pair_energy(_) -> check(pair_energy).
 fixture_energy(_) -> check(fixture_energy).

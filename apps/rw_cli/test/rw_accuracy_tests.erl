@@ -2,7 +2,7 @@
 %% front, CSV and the table. The sweep itself runs in test/accuracy_SUITE.
 -module(rw_accuracy_tests).
 -include_lib("eunit/include/eunit.hrl").
--include("rigidwarp.hrl").
+-include_lib("rigidwarp/include/rigidwarp.hrl").
 
 scene(Spheres, Fixtures, Model) ->
     #scene{name = <<"t">>, duration = 10, substep = 1, stride = 1, frame = 1, model = Model,

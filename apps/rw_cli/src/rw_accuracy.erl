@@ -33,7 +33,7 @@
 %% Stride changes only the speed: the frames, and so the accuracy, are the
 %% same for every stride.
 -module(rw_accuracy).
--include("rigidwarp.hrl").
+-include_lib("rigidwarp/include/rigidwarp.hrl").
 -export([sweep/1, check_scene/1, measure/3, metrics/3, pareto/1, csv/1, table/1, columns/0, num/1,
          default_scenes/0, default_substeps/0, default_strides/0]).
 -export_type([row/0, options/0, scene_spec/0]).
@@ -271,16 +271,12 @@ substep(P0s, P1s, Radius, Shapes) ->
     Fixture = [{fixture_depth(P1, R, Shape), crosses(P0, P1, Shape)}
                || {P0, P1, R} <- Bodies, Shape <- Shapes],
     %% sweep and prune on x over the span each sphere covers in the substep
-    Spans = lists:sort([{min(X0, X1) - R, max(X0, X1) + R, B}
-                        || {{X0, _, _}, {X1, _, _}, R} = B <- Bodies]),
-    Pair = candidate_pairs(Spans, []),
+    Spans = [{min(X0, X1) - R, K, max(X0, X1) + R}
+             || {K, {{X0, _, _}, {X1, _, _}, R}} <- lists:zip(lists:seq(1, length(Bodies)), Bodies)],
+    ByK = list_to_tuple(Bodies),
+    Pair = [pair(element(A, ByK), element(B, ByK)) || {A, B} <- rw_broadphase:sweep(Spans, spans)],
     {lists:max([0.0 | [D || {D, _} <- Fixture ++ Pair]]),
      length([x || {_, true} <- Fixture ++ Pair])}.
-
-candidate_pairs([], Acc) -> Acc;
-candidate_pairs([{_, Hi, A} | Rest], Acc) ->
-    Near = lists:takewhile(fun({Lo, _, _}) -> Lo =< Hi end, Rest),
-    candidate_pairs(Rest, [pair(A, B) || {_, _, B} <- Near] ++ Acc).
 
 pair({PA0, PA1, RA}, {PB0, PB1, RB}) ->
     D0 = rw_vec:sub(PB0, PA0),
@@ -316,19 +312,8 @@ crosses(P0, P1, {box, C, E, solid}) ->
 inside({X, Y, Z}, {LX, LY, LZ}, {HX, HY, HZ}) ->
     X > LX andalso X < HX andalso Y > LY andalso Y < HY andalso Z > LZ andalso Z < HZ.
 
-%% Slab test: does P + s D, s in [0, 1], meet the open box (Lo, Hi)?
-segment_hits_box(P, D, Lo, Hi) ->
-    slabs([1, 2, 3], P, D, Lo, Hi, 0.0, 1.0).
-
-slabs([], _P, _D, _Lo, _Hi, SMin, SMax) -> SMin < SMax;
-slabs([I | Rest], P, D, Lo, Hi, SMin, SMax) ->
-    Pi = element(I, P), Di = element(I, D), Li = element(I, Lo), Hi_ = element(I, Hi),
-    case Di == 0.0 of
-        true -> Pi > Li andalso Pi < Hi_ andalso slabs(Rest, P, D, Lo, Hi, SMin, SMax);
-        false ->
-            {A, B} = {(Li - Pi) / Di, (Hi_ - Pi) / Di},
-            slabs(Rest, P, D, Lo, Hi, max(SMin, min(A, B)), min(SMax, max(A, B)))
-    end.
+%% Does P + s D, s in [0, 1], meet the open box (Lo, Hi)?
+segment_hits_box(P, D, Lo, Hi) -> rw_narrow:segment_box(P, D, Lo, Hi, open) =/= none.
 
 %%% Pareto front, CSV and the table
 
