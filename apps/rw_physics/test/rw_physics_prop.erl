@@ -488,8 +488,12 @@ prop_hash_region_keeps_box() ->
                           (not Inside) orelse rw_hash:box(Moved, S) =:= Box)
             end)).
 
-corner_move() -> oneof([none, {steps, range(-2, 2)}, {frac, float(-1.0, 1.0)}, border_low, border_high,
-                         {off_border, oneof([border_low, border_high]), range(-3, 3)}]).
+%% (Moves that mostly keep a corner in its cell weigh more: with all six
+%% kinds equally likely, only 4 % of cases had all six corners in the
+%% region, the only cases where the property checks anything; now 13 %.)
+corner_move() -> frequency([{2, none}, {2, {steps, range(-2, 2)}}, {2, {frac, float(-0.05, 0.05)}},
+                            {1, {frac, float(-1.0, 1.0)}}, {1, border_low}, {1, border_high},
+                            {1, {off_border, oneof([border_low, border_high]), range(-3, 3)}}]).
 
 move(X, none, _S) -> X;
 move(X, {steps, N}, _S) when N >= 0 -> next_float(X, N);
