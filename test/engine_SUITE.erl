@@ -16,7 +16,7 @@
 -export([scenarios_equal/1, contact_scenes_equal/1, strides_and_buckets_equal/1, random_scenes_equal/1,
          random_delays_terminate_and_equal/1, watchdog_names_stuck_body/1,
          no_leaks_after_100_runs/1, escript_frames_identical/1, frames_api/1, frame_times_only/1, ring_keeps_last_frames/1,
-         contact_groups/1]).
+         contact_groups/1, crashes_end_the_simulation/1]).
 
 suite() -> [{timetrap, {minutes, 15}}].
 
@@ -26,7 +26,8 @@ groups() ->
     [{equality, [], [scenarios_equal, contact_scenes_equal, strides_and_buckets_equal, random_scenes_equal,
                      escript_frames_identical, contact_groups]},
      {liveness, [], [random_delays_terminate_and_equal, watchdog_names_stuck_body]},
-     {lifecycle, [], [no_leaks_after_100_runs, frames_api, frame_times_only, ring_keeps_last_frames]}].
+     {lifecycle, [], [no_leaks_after_100_runs, frames_api, frame_times_only, ring_keeps_last_frames,
+                      crashes_end_the_simulation]}].
 
 init_per_suite(Config) ->
     {ok, _} = application:ensure_all_started(rigidwarp),
@@ -580,4 +581,37 @@ ring_keeps_last_frames(_Config) ->
     ?assertEqual(none, rw_gvt:frame_at(Ring, Evicted)),
     ?assertEqual(4 * N, ets:info(Records, size)),
     rw_timewarp:stop(H),
+    ok.
+
+%% A crash ends its simulation and the runner reports it, leaving no
+%% simulation behind: a bucket or the GVT process at once (rest_for_one,
+%% intensity 0: {crashed, _}). A body is a temporary child, whose exit its
+%% supervisor neither restarts nor counts, so the others wait for it until
+%% the watchdog reports the stall and names it dead (after watchdog_ms).
+crashes_end_the_simulation(_Config) ->
+    {ok, Scene} = rigidwarp:load(rw_test_lib:scenario("bouncing_50_250.json"), #{until => 3000}),
+    Before = supervisor:which_children(rw_sims_sup),
+    Run = fun(Victim) ->
+                  Kill = fun({frame, 100, _}) ->
+                                 [Sup] = [P || {_, P, _, _} <- supervisor:which_children(rw_sims_sup)],
+                                 #{bodies := BodySup, gvt := Gvt, buckets := Buckets} = rw_sim_sup:children(Sup),
+                                 Pid = case Victim of
+                                           body -> element(2, hd(supervisor:which_children(BodySup)));
+                                           bucket -> element(1, Buckets);
+                                           gvt -> Gvt
+                                       end,
+                                 exit(Pid, crash);
+                            (_) -> ok
+                         end,
+                  T0 = erlang:monotonic_time(millisecond),
+                  Result = rw_timewarp:run(Scene, #{on_frame => Kill, watchdog_ms => 500}),
+                  Ms = erlang:monotonic_time(millisecond) - T0,
+                  ct:log("~p crashed at 100 ms: ~P after ~b ms", [Victim, Result, 6, Ms]),
+                  ?assertEqual(Before, supervisor:which_children(rw_sims_sup)),
+                  Result
+          end,
+    {error, {crashed, _}} = Run(bucket),
+    {error, {crashed, _}} = Run(gvt),
+    {error, {stalled, _, Report}} = Run(body),
+    ?assertMatch({match, _}, re:run(Report, "; dead\n")),
     ok.
