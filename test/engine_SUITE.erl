@@ -224,14 +224,15 @@ count(Tally, Key) ->
     end.
 
 %% The share of runs (in %) each class must at least reach: far below how
-%% often it comes by chance (see scene_map/0; the counts are logged), far
-%% above none.
+%% often it comes by chance (see scene_map/0; the counts are logged: with
+%% 300 runs each kind of fixture was touched in 10-15 % of them, a share
+%% 3.5-4 standard deviations above these), far above none.
 check_tally(Tally, Runs) ->
     check_tally(Tally, Runs, [{{kind, gas}, 15}, {{kind, pile}, 15}, {{kind, obstacles}, 15},
                               {pair_contacts, 40}, {fixture_contacts, 40}, {regrouped, 10},
                               {{kind_contact, pile, pairs}, 12},
-                              {{touched, plane}, 4}, {{touched, cylinder}, 4}, {{touched, tilted_cylinder}, 4},
-                              {{touched, solid_box}, 4}, {{touched, hollow_box}, 30}]).
+                              {{touched, plane}, 3}, {{touched, cylinder}, 3}, {{touched, tilted_cylinder}, 3},
+                              {{touched, solid_box}, 3}, {{touched, hollow_box}, 30}]).
 
 check_tally(Tally, Runs, Least) ->
     Counts = lists:sort(ets:tab2list(Tally)),
@@ -491,7 +492,7 @@ random_delays_terminate_and_equal(_Config) ->
                                                            [SceneMap, Stride, Seed, MaxMs, Groups]), Tally)
                    end),
     true = proper:quickcheck(Prop, [{numtests, 80}, {to_file, user}, long_result]),
-    check_tally(Tally, 80, [{pair_contacts, 30}, {fixture_contacts, 30}, {regrouped, 20}]),
+    check_tally(Tally, 80, [{pair_contacts, 25}, {fixture_contacts, 30}, {regrouped, 20}]),
     ok.
 
 watchdog_names_stuck_body(_Config) ->
