@@ -3,6 +3,7 @@
 -module(accuracy_SUITE).
 -include_lib("common_test/include/ct.hrl").
 -include_lib("stdlib/include/assert.hrl").
+-include("rw_test.hrl").
 -export([all/0, suite/0, init_per_suite/1, end_per_suite/1]).
 -export([projectile_converges/1, thin_wall_needs_ccd/1, elastic_pair_conserves/1, csv_has_a_row_per_setting/1,
          unsupported_scene/1, command_end_to_end/1]).
@@ -47,7 +48,8 @@ projectile_converges(_Config) ->
          ?assert(abs(Err(I, 1) / Err(I, 0.5) - 2.0) < 0.01)
      end || I <- [symplectic_euler, explicit_euler]],
     [?assert(Err(verlet, S) < 1.0e-12) || S <- [0.5, 1, 2, 4]],
-    [?assertMatch(#{missed := 0, impacts := 0, max_penetration := 0.0}, R) || R <- Rows],
+    [?assertBitwise(#{missed => 0, impacts => 0, max_penetration => 0.0},
+                    maps:with([missed, impacts, max_penetration], R)) || R <- Rows],
     [?assert(M < 1.0e-12) || #{momentum_drift := M} <- Rows].
 
 %% 5000 m/s against a 2 cm wall: without CCD the bullet goes through (one
@@ -67,10 +69,13 @@ thin_wall_needs_ccd(_Config) ->
 elastic_pair_conserves(_Config) ->
     Rows = sweep("head_on_elastic.json", #{substeps => [1, 16], ccd => [false, true]}),
     ?assertEqual(4, length(Rows)),
+    %% (matched inside, not in the generator, which would skip a row that
+    %% missed its impact instead of failing)
     [begin
+         #{energy_drift := E, momentum_drift := M, missed := 0, impacts := 1} = Row,
          ?assert(E < 1.0e-12),
          ?assert(M < 1.0e-12)
-     end || #{energy_drift := E, momentum_drift := M, missed := 0, impacts := 1} <- Rows],
+     end || Row <- Rows],
     %% without CCD the pair overlaps by up to the closing distance per substep
     #{max_penetration := D} = pick(Rows, #{ccd => false, substep_ms => 16}),
     ?assert(D > 0.0 andalso D =< 6.0 * 0.016 + 1.0e-9).
@@ -86,8 +91,10 @@ csv_has_a_row_per_setting(_Config) ->
     ?assertEqual(length(Rows), length(Lines)),
     [?assertMatch(<<"head_on_elastic,", _/binary>>, L) || L <- Lines],
     %% stride changes the speed only
-    ?assertEqual(1, length(lists:usort([maps:without([stride_ms, wall_ms, realtime_factor, pareto], R)
-                                        || #{substep_ms := 2, ccd := true} = R <- Rows]))),
+    [First | Others] = [maps:without([stride_ms, wall_ms, realtime_factor, pareto], R)
+                        || #{substep_ms := 2, ccd := true} = R <- Rows],
+    ?assertEqual(1, length(Others)),
+    [?assertBitwise(First, Other) || Other <- Others],
     ?assert(lists:any(fun(#{pareto := P}) -> P end, Rows)).
 
 unsupported_scene(_Config) ->

@@ -1,12 +1,65 @@
 %% Helpers shared by the common_test suites in test/ (and by the apps'
 %% EUnit tests: rebar3 compiles test/ for both).
 -module(rw_test_lib).
--export([root/0, scenario/1, escript/0, run_escript/1, bitwise_equal/2]).
+-export([root/0, scenario/1, test_scene/1, escript/0, run_escript/1, bitwise_equal/2, assert_bitwise/2,
+         assert_bitwise/3, first_difference/2]).
 
 %% Bit for bit the same terms: =:= takes -0.0 for 0.0 on OTP 25; the
-%% external format keeps each float's IEEE bits.
+%% external format keeps each float's IEEE bits (deterministic: maps equal
+%% by content encode alike, however they were built).
 -spec bitwise_equal(term(), term()) -> boolean().
-bitwise_equal(A, B) -> term_to_binary(A, [{minor_version, 2}]) =:= term_to_binary(B, [{minor_version, 2}]).
+bitwise_equal(A, B) ->
+    term_to_binary(A, [{minor_version, 2}, deterministic]) =:= term_to_binary(B, [{minor_version, 2}, deterministic]).
+
+%% The float comparison of every test: ok when Expected and Actual are the
+%% same terms bit for bit (so -0.0 is not 0.0, and 1 is not 1.0), else an
+%% error naming Where (?assertBitwise in test/rw_test.hrl passes the module
+%% and line), both terms (when they are small enough to read) and the path
+%% to their first difference.
+-spec assert_bitwise(term(), term()) -> ok.
+assert_bitwise(Expected, Actual) -> assert_bitwise(Expected, Actual, undefined).
+
+-spec assert_bitwise(term(), term(), term()) -> ok.
+assert_bitwise(Expected, Actual, Where) ->
+    case bitwise_equal(Expected, Actual) of
+        true -> ok;
+        false ->
+            Shown = fun(T) -> case erts_debug:flat_size(T) < 2000 of true -> T; false -> too_large_to_show end end,
+            Report = [{where, Where}, {expected, Shown(Expected)}, {value, Shown(Actual)},
+                      {first_difference, first_difference(Expected, Actual)}],
+            io:format(user, "~nassert_bitwise failed: ~w~n", [Report]),
+            erlang:error({assert_bitwise, Report})
+    end.
+
+%% Where two terms first differ bit for bit: {Path, Expected, Actual}, Path
+%% the positions (1-based, in tuples and lists) and map keys leading there,
+%% or none. Printed with ~w, a -0.0 shows as -0.0.
+-spec first_difference(term(), term()) -> none | {[term()], term(), term()}.
+first_difference(A, B) ->
+    case bitwise_equal(A, B) of
+        true -> none;
+        false -> diff(A, B, [])
+    end.
+
+diff(A, B, Path) when is_tuple(A), is_tuple(B), tuple_size(A) =:= tuple_size(B) ->
+    diff_list(tuple_to_list(A), tuple_to_list(B), 1, Path);
+diff(A, B, Path) when is_list(A), is_list(B), length(A) =:= length(B) ->
+    diff_list(A, B, 1, Path);
+diff(A, B, Path) when is_map(A), is_map(B), map_size(A) =:= map_size(B) ->
+    Keys = lists:sort(maps:keys(A)),
+    case lists:all(fun(K) -> is_map_key(K, B) end, Keys) of
+        true ->
+            hd([diff(maps:get(K, A), maps:get(K, B), [K | Path])
+                || K <- Keys, not bitwise_equal(maps:get(K, A), maps:get(K, B))]);
+        false -> {lists:reverse(Path), A, B}
+    end;
+diff(A, B, Path) -> {lists:reverse(Path), A, B}.
+
+diff_list([X | As], [Y | Bs], I, Path) ->
+    case bitwise_equal(X, Y) of
+        true -> diff_list(As, Bs, I + 1, Path);
+        false -> diff(X, Y, [I | Path])
+    end.
 
 %% The repository root: the first directory above this file holding
 %% rebar.config (suites run with the ct log directory as cwd).
@@ -23,6 +76,11 @@ find_root(Dir) ->
 
 -spec scenario(string()) -> file:filename().
 scenario(Name) -> filename:join([root(), "scenarios", Name]).
+
+%% A scene used by tests only (test/scenes/): not listed to users and not
+%% compared by engine_SUITE:scenarios_equal.
+-spec test_scene(string()) -> file:filename().
+test_scene(Name) -> filename:join([root(), "test", "scenes", Name]).
 
 -spec escript() -> file:filename().
 escript() -> filename:join([root(), "_build", "default", "bin", "rigidwarp"]).

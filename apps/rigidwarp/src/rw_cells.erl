@@ -20,7 +20,7 @@
 %% Bounds is a box that holds the sphere (swept, with CCD) at all of them.
 -type payload() :: {Idx :: non_neg_integer(), Writer :: term(), #sphere{}, T0 :: non_neg_integer(),
                     States :: rw_states:packed(), Bounds :: bounds()}.
--type bounds() :: {float(), float(), float(), float(), float(), float()}.
+-type bounds() :: rw_shape:box6().
 %% One entity's step: the writer, its first substep, its members' payloads
 %% and a box that holds them all.
 -type write() :: {Writer :: term(), T0 :: non_neg_integer(), #{non_neg_integer() => payload()}, bounds()}.

@@ -113,7 +113,7 @@ scene({playback, S, _}) -> S.
 frames_after({playback, _, Frames}, T, Max) ->
     lists:sublist([Fr || {frame, FT, _} = Fr <- Frames, FT > T], min(Max, ?MAX_FRAMES_PER_CALL));
 frames_after({live, #{ring := Ring}}, T, Max) ->
-    case alive(fun() -> rw_gvt:frames_after(Ring, T, min(Max, ?MAX_FRAMES_PER_CALL)) end) of
+    case alive(fun() -> rw_ring:frames_after(Ring, T, min(Max, ?MAX_FRAMES_PER_CALL)) end) of
         stopped -> [];
         Frames -> Frames
     end.

@@ -1,6 +1,9 @@
 %% Scene validation: every rejection names the JSON path and the problem.
 -module(rw_scene_tests).
 -include_lib("eunit/include/eunit.hrl").
+%% Bit for bit (test/rw_test.hrl has the same macro for the suites; rebar3
+%% copies these modules to _build, away from it).
+-define(assertBitwise(Expected, Actual), rw_test_lib:assert_bitwise(Expected, Actual, {?MODULE, ?LINE})).
 -include("rigidwarp.hrl").
 
 base() ->
@@ -84,12 +87,14 @@ overrides_apply_before_validation_test() ->
 %% microseconds dividing 1 ms and the substep. Whole ms keep the 1 ms tick.
 sub_millisecond_substeps_test_() ->
     Load = fun(Times) -> rw_scene:from_map(maps:merge(base(), Times), #{}) end,
-    [?_assertMatch({ok, #scene{tick_us = 500, substep = 1, stride = 128, frame = 20, duration = 200,
-                               model = #model{dt = 0.0005}}},
-                   Load(#{<<"substep_ms">> => 0.5, <<"stride_ms">> => 64, <<"frame_ms">> => 10,
-                          <<"duration_ms">> => 100})),
-     ?_assertMatch({ok, #scene{tick_us = 1, substep = 1, duration = 20000, model = #model{dt = 1.0e-6}}},
-                   Load(#{<<"substep_ms">> => 0.001, <<"duration_ms">> => 20})),
+    Dt = fun({ok, #scene{model = #model{dt = D}}}) -> D end,
+    Half = Load(#{<<"substep_ms">> => 0.5, <<"stride_ms">> => 64, <<"frame_ms">> => 10, <<"duration_ms">> => 100}),
+    Micro = Load(#{<<"substep_ms">> => 0.001, <<"duration_ms">> => 20}),
+    Two = Load(#{<<"substep_ms">> => 2}),
+    [?_assertMatch({ok, #scene{tick_us = 500, substep = 1, stride = 128, frame = 20, duration = 200}}, Half),
+     ?_test(?assertBitwise(0.0005, Dt(Half))),
+     ?_assertMatch({ok, #scene{tick_us = 1, substep = 1, duration = 20000}}, Micro),
+     ?_test(?assertBitwise(1.0e-6, Dt(Micro))),
      %% 1.5 ms: ticks of 0.5 ms, 3 per substep
      ?_assertMatch({ok, #scene{tick_us = 500, substep = 3, frame = 30}},
                    Load(#{<<"substep_ms">> => 1.5, <<"frame_ms">> => 15, <<"stride_ms">> => 15,
@@ -98,7 +103,7 @@ sub_millisecond_substeps_test_() ->
      %% the same substep from an override
      ?_assertMatch({ok, #scene{tick_us = 250, substep = 1}},
                    rw_scene:from_map(base(), #{overrides => #{substep_ms => 0.25}})),
-     ?_assertMatch({ok, #scene{model = #model{dt = 0.002}}}, Load(#{<<"substep_ms">> => 2})),
+     ?_test(?assertBitwise(0.002, Dt(Two))),
      ?_assertEqual("$.substep_ms: must be a whole number of microseconds (0.001 ms at the finest), got 0.0005 ms",
                    rw_scene:format_error(element(2, Load(#{<<"substep_ms">> => 0.0005})))),
      ?_assertEqual("$.frame_ms: 10 ms is not a multiple of the substep (0.3 ms)",
@@ -112,10 +117,10 @@ ms_of_ticks_test_() ->
     {ok, Whole} = rw_scene:from_map(base(), #{}),
     [?_assertEqual(3, rw_scene:ms(Whole, 3)),
      ?_assertEqual(-1, rw_scene:ms(Half, -1)),
-     ?_assertEqual(0.5, rw_scene:ms(Half, 1)),
+     ?_test(?assertBitwise(0.5, rw_scene:ms(Half, 1))),
      ?_assertEqual(10, rw_scene:ms(Half, 20)),
      ?_assertEqual(20, rw_scene:whole_ms(20.0)),
-     ?_assertEqual(0.5, rw_scene:whole_ms(0.5))].
+     ?_test(?assertBitwise(0.5, rw_scene:whole_ms(0.5)))].
 
 model_overrides_test() ->
     Map = (base())#{<<"model">> => #{<<"integrator">> => <<"explicit_euler">>, <<"ccd">> => true}},
@@ -133,7 +138,7 @@ generators_are_deterministic_test() ->
                            <<"mass">> => 2}]},
     {ok, S1} = rw_scene:from_map(Map, #{}),
     {ok, S2} = rw_scene:from_map(Map, #{}),
-    ?assertEqual(S1#scene.initial, S2#scene.initial),
+    ?assertBitwise(S1#scene.initial, S2#scene.initial),
     Ids = [Id || #sphere{id = Id} <- S1#scene.spheres],
     ?assertEqual(2 + 20 + 6, length(Ids)),
     ?assert(lists:member(<<"r07">>, Ids)),
@@ -143,12 +148,15 @@ generators_are_deterministic_test() ->
     [?assert(rw_vec:len(V) < 2.0) || #st{v = V} <- S1#scene.initial].
 
 rotation_adds_angular_state_test() ->
-    {ok, #scene{initial = [#st{q = {{0.0, 0.0, 0.0}, 1.0}, w = {0.0, 0.0, 0.0}} | _]}} =
-        rw_scene:from_map((base())#{<<"model">> => #{<<"rotation">> => true}}, #{}).
+    {ok, #scene{initial = [#st{q = Q, w = W} | _]}} =
+        rw_scene:from_map((base())#{<<"model">> => #{<<"rotation">> => true}}, #{}),
+    ?assertBitwise({{{0.0, 0.0, 0.0}, 1.0}, {0.0, 0.0, 0.0}}, {Q, W}).
 
 zero_gravity_is_no_gravity_test() ->
-    {ok, #scene{model = #model{gravity = undefined, rest_speed = 0.0}}} =
+    {ok, #scene{model = #model{gravity = undefined, rest_speed = Zero}}} =
         rw_scene:from_map((base())#{<<"model">> => #{<<"gravity">> => [0, 0, 0]}}, #{}),
-    {ok, #scene{model = #model{gravity = {0.0, -10.0, 0.0}, rest_speed = RS}}} =
+    ?assertBitwise(0.0, Zero),
+    {ok, #scene{model = #model{gravity = G, rest_speed = RS}}} =
         rw_scene:from_map((base())#{<<"model">> => #{<<"gravity">> => [0, -10, 0]}}, #{}),
+    ?assertBitwise({0.0, -10.0, 0.0}, G),
     ?assert(abs(RS - 0.02) < 1.0e-12).

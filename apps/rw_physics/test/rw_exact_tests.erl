@@ -1,6 +1,9 @@
 %% The exact event-driven solver against closed forms.
 -module(rw_exact_tests).
 -include_lib("eunit/include/eunit.hrl").
+%% Bit for bit (test/rw_test.hrl has the same macro for the suites; rebar3
+%% copies these modules to _build, away from it).
+-define(assertBitwise(Expected, Actual), rw_test_lib:assert_bitwise(Expected, Actual, {?MODULE, ?LINE})).
 
 world(G, E, Planes) -> #{gravity => G, restitution => E, planes => Planes}.
 ball(Id, R, M, P, V) -> #{id => Id, r => R, m => M, p => P, v => V}.
@@ -12,8 +15,8 @@ equal_masses_swap_test() ->
         rw_exact:run(world(undefined, 1.0, []), [ball(a, 0.5, 1.0, {-2.0, 0.0, 0.0}, {1.0, 0.0, 0.0}),
                                                   ball(b, 0.5, 1.0, {2.0, 0.0, 0.0}, {-1.0, 0.0, 0.0})], [3000]),
     near(T, 1.5),
-    ?assertEqual({-1.0, 0.0, 0.0}, VA),
-    ?assertEqual({1.0, 0.0, 0.0}, VB),
+    ?assertBitwise({-1.0, 0.0, 0.0}, VA),
+    ?assertBitwise({1.0, 0.0, 0.0}, VB),
     near(element(1, PA), -2.0), near(element(1, PB), 2.0).
 
 unequal_masses_textbook_test() ->
@@ -45,24 +48,24 @@ ball_drop_comes_to_rest_test() ->
                      [3000]),
     ?assert(length(Events) < 100),
     near(Y, 0.1),
-    ?assertEqual({0.0, 0.0, 0.0}, V).
+    ?assertBitwise({0.0, 0.0, 0.0}, V).
 
 cradle_passes_momentum_through_test() ->
     Balls = [ball(list_to_atom([$a + I]), 0.5, 1.0, {float(I), 0.0, 0.0}, {0.0, 0.0, 0.0}) || I <- lists:seq(0, 4)],
     Striker = ball(s, 0.5, 1.0, {-1.5, 0.0, 0.0}, {1.0, 0.0, 0.0}),
     {[{2000, Final}], _} = rw_exact:run(world(undefined, 1.0, []), [Striker | Balls], [2000]),
     Vs = [element(1, V) || {_, _, V} <- Final],
-    ?assertEqual([0.0, 0.0, 0.0, 0.0, 0.0, 1.0], Vs).
+    ?assertBitwise([0.0, 0.0, 0.0, 0.0, 0.0, 1.0], Vs).
 
 %%% Boxes: containers (six inward half-spaces) and solid boxes (six bounded faces)
 
 walls_of_fixtures_test() ->
-    ?assertEqual([{{0.0, 1.0, 0.0}, 2.0}], rw_exact:walls({plane, {0.0, 1.0, 0.0}, 2.0})),
+    ?assertBitwise([{{0.0, 1.0, 0.0}, 2.0}], rw_exact:walls({plane, {0.0, 1.0, 0.0}, 2.0})),
     Hollow = rw_exact:walls({box, {1.0, 0.0, 0.0}, {2.0, 3.0, 4.0}, hollow}),
     ?assertEqual(6, length(Hollow)),
     %% the centre is on the free side of every container wall
     [?assert(rw_vec:dot(N, {1.0, 0.0, 0.0}) > Off) || {N, Off} <- Hollow],
-    ?assert(lists:member({{-1.0, 0.0, 0.0}, -3.0}, Hollow)),
+    ?assert(lists:any(fun(Wall) -> rw_test_lib:bitwise_equal({{-1.0, 0.0, 0.0}, -3.0}, Wall) end, Hollow)),
     Solid = rw_exact:walls({box, {1.0, 0.0, 0.0}, {2.0, 3.0, 4.0}, solid}),
     ?assertEqual(6, length(Solid)),
     %% the centre is on the solid side of every face, a point outside on the free side of one
@@ -87,7 +90,7 @@ thin_wall_bounces_test() ->
     {[{10, [{bullet, {X, _, _}, V}]}], [{T, {plane, 1, 1}}]} =
         rw_exact:run(W, [ball(bullet, 0.05, 1.0, {0.0, 0.0, 0.0}, {5000.0, 0.0, 0.0})], [10]),
     near(T, 10.24 / 5000),
-    ?assertEqual({-5000.0, 0.0, 0.0}, V),
+    ?assertBitwise({-5000.0, 0.0, 0.0}, V),
     near(X, 10.24 - 5000.0 * (0.010 - 10.24 / 5000)).
 
 beside_a_solid_box_test() ->
@@ -108,7 +111,7 @@ lands_on_a_solid_box_test() ->
         rw_exact:run(W, [ball(b, 0.5, 1.0, {0.0, 1.5, 0.0}, {0.0, 0.0, 0.0})], [2000]),
     near(T, math:sqrt(2 * 1.0 / 9.81)),
     near(Y, 0.5),
-    ?assertEqual({0.0, 0.0, 0.0}, V).
+    ?assertBitwise({0.0, 0.0, 0.0}, V).
 
 resting_sphere_slides_test() ->
     %% starts touching the floor of a container, moving sideways at 2 m/s:
@@ -118,10 +121,11 @@ resting_sphere_slides_test() ->
     W = world(G, 1.0, rw_exact:walls({box, {0.0, 5.0, 0.0}, {1.0, 5.0, 1.0}, hollow})),
     {[{1000, [{b, {X, Y, _}, {Vx, Vy, _}}]}], Events} =
         rw_exact:run(W, [ball(b, 0.1, 1.0, {0.0, 0.1, 0.0}, {2.0, 0.0, 0.0})], [1000]),
-    ?assertMatch([{0.0, {plane, 1, 2}}, {_, {plane, 1, 4}}], Events),
+    ?assertMatch([{_, {plane, 1, 2}}, {_, {plane, 1, 4}}], Events),
+    ?assertBitwise(0.0, element(1, hd(Events))),
     near(element(1, lists:last(Events)), 0.45),
-    ?assertEqual({0.1, 0.0}, {Y, Vy}),
-    ?assertEqual(-2.0, Vx),
+    ?assertBitwise({0.1, 0.0}, {Y, Vy}),
+    ?assertBitwise(-2.0, Vx),
     near(X, 0.9 - 2.0 * (1.0 - 0.45)).
 
 many_frames_agree_with_one_test() ->

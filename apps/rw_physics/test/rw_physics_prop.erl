@@ -15,7 +15,7 @@
          prop_degenerate_input/0, prop_quat_integrate/0, prop_free_flight/0,
          prop_respond_is_ordered_fold/0, prop_container_is_six_walls/0,
          prop_fixture_box_skips_only_misses/0, prop_fixture_then_pair_energy/0,
-         prop_island_equals_all_pairs/0, prop_sweep_spheres_equals_all_pairs/0,
+         prop_island_equals_all_pairs/0, prop_island_equals_all_pairs/1, prop_sweep_spheres_equals_all_pairs/0,
          prop_sweep_spans_equals_all_pairs/0, prop_grid_equals_shared_cells/0]).
 %% generators, for use from a shell: proper_gen:pick(rw_physics_prop:pair_case())
 -export([position/0, far_vec/0, vec/0, direction/0, quat/0, sphere/1, model/0, state/1, pair_case/0,
@@ -187,6 +187,16 @@ tangential(V, N) -> rw_vec:madd(V, N, -rw_vec:dot(V, N)).
 %% Absolute tolerance for quantities computed from coordinates of size Scale.
 tol(Scale) -> 1.0e-9 + 1.0e-13 * Scale.
 
+%% Bit for bit the same (=:= takes -0.0 for 0.0 on OTP 25).
+bitwise(A, B) -> rw_test_lib:bitwise_equal(A, B).
+
+%% Every -0.0 in a term made 0.0, every other float kept bit for bit (for
+%% the comparisons that mean "zero of either sign").
+zero_signs(X) when is_float(X) -> X + 0.0;
+zero_signs(T) when is_tuple(T) -> list_to_tuple(zero_signs(tuple_to_list(T)));
+zero_signs(L) when is_list(L) -> [zero_signs(X) || X <- L];
+zero_signs(X) -> X.
+
 report(Fmt, Args) -> io:format(user, Fmt ++ "~n", Args).
 
 valid_contact(#contact{n = N, depth = D, toi = T}) ->
@@ -296,15 +306,20 @@ prop_fixture_energy() ->
                      ?WHENFAIL(report("model ~p: (contact, KE before, KE after) ~p", [M, Bad]), Bad =:= [])
                  end))).
 
+%% (The model's restitution is at most 1, friction and rest speed at
+%% least 0: the order tests below pick the elastic, frictionless case.)
 energy_ok(#model{restitution = E, friction = Mu, rest_speed = Rest}, Before, After) ->
-    case E == 1.0 andalso (Mu =:= undefined orelse Mu == 0.0) andalso Rest == 0.0 of
+    case E >= 1.0 andalso (Mu =:= undefined orelse Mu =< 0.0) andalso Rest =< 0.0 of
         true -> abs(After - Before) =< ?REL * Before;
         false -> After =< Before * (1.0 + ?REL)
     end.
 
 %% Normal relative velocity after the impulse: -e times before when
 %% approaching faster than rest_speed, 0 when approaching slower, unchanged
-%% (and no impulse at all) when separating. The impulse on A points away
+%% (and no impulse at all: each effect is a zero, of either sign, so each
+%% velocity stays bit for bit what it was) when separating or at rest
+%% relative to each other (B's effect is -0.0 on every axis for two spheres
+%% at rest). The impulse on A points away
 %% from B.
 prop_restitution_law() ->
     ?FORALL({M, SA, StA, SB, StB, #contact{n = N}} = Case, pair_case(),
@@ -322,7 +337,8 @@ prop_restitution_law() ->
                           case Vn0 < 0.0 of
                               true when -Vn0 > Rest -> abs(Vn1 + E * Vn0) =< Tol andalso JnA =< 0.0;
                               true -> abs(Vn1) =< Tol andalso JnA =< 0.0;
-                              false -> DvA == {0.0, 0.0, 0.0} andalso DvB == {0.0, 0.0, 0.0}
+                              false -> bitwise(zero_signs({DvA, DvB}), {{0.0, 0.0, 0.0}, {0.0, 0.0, 0.0}})
+                                           andalso bitwise({VA1, VB1}, {StA#st.v, StB#st.v})
                           end)
             end)).
 
@@ -355,8 +371,11 @@ w_speed(#sphere{radius = R}, W, Dw) -> R * (rw_vec:len(W) + rw_vec:len(Dw)).
 
 %% A's and B's effects are the two halves of one impulse: equal and opposite
 %% once divided by the inverse masses (angular: by r/I), and the computation
-%% is deterministic. Evaluating the pair the other way round (B first, normal
-%% reversed) gives bit-identical effects.
+%% is deterministic (bit for bit). Evaluating the pair the other way round
+%% (B first, normal reversed) gives bit-identical effects but for the signs
+%% of zeros (0.0 where the canonical order gives -0.0 and the other way
+%% round: =:= could not see it). The engines only ever evaluate a pair in
+%% canonical order (lower idx first), so no result depends on those signs.
 prop_pair_symmetric_and_repeatable() ->
     ?FORALL({M, SA, StA, SB, StB, C} = Case, pair_case(),
             ?SAFE(begin
@@ -377,7 +396,8 @@ prop_pair_symmetric_and_repeatable() ->
                                   rw_vec:len(rw_vec:sub(XA, XB)) =< ?REL * (rw_vec:len(XA) + rw_vec:len(XB))
                           end,
                 ?WHENFAIL(report("effects ~p~nagain ~p~nswapped ~p", [R1, R2, {EffA, EffB}]),
-                          R1 =:= R2 andalso {EffA, EffB} =:= R1 andalso Opposite(DvA, DvB)
+                          bitwise(R1, R2) andalso bitwise(zero_signs({EffA, EffB}), zero_signs(R1))
+                              andalso Opposite(DvA, DvB)
                               andalso Opposite(DuA, DuB) andalso SameArm)
             end)).
 
@@ -430,7 +450,7 @@ prop_container_is_six_walls() ->
                                             {0, Contact} <- rw_narrow:sphere_fixture(P, R, {plane, N, Off})],
                 Got = rw_narrow:sphere_fixture(P, R, {box, C, E, hollow}),
                 ?WHENFAIL(report("sphere ~p r ~p in box ~p ~p: ~p, walls as planes ~p", [P, R, C, E, Got, Expected]),
-                          Got =:= Expected)
+                          bitwise(Got, Expected))
             end)).
 
 %% The bounding-box test in front of a fixture changes no result: near the
@@ -453,7 +473,7 @@ prop_fixture_box_skips_only_misses() ->
                 Swept = {rw_narrow:swept_fixture(P, D, R, Fixture), rw_narrow:swept_sphere_fixture(P, D, R, Shape)},
                 ?WHENFAIL(report("sphere ~p r ~p moving ~p, ~p (box ~p): static ~p, swept ~p",
                                  [P, R, D, Shape, Fixture#fixture.box, Static, Swept]),
-                          element(1, Static) =:= element(2, Static) andalso element(1, Swept) =:= element(2, Swept))
+                          bitwise(element(1, Static), element(2, Static)) andalso bitwise(element(1, Swept), element(2, Swept)))
             end)).
 
 prop_hash_region_keeps_box() ->
@@ -469,8 +489,12 @@ prop_hash_region_keeps_box() ->
                           (not Inside) orelse rw_hash:box(Moved, S) =:= Box)
             end)).
 
-corner_move() -> oneof([none, {steps, range(-2, 2)}, {frac, float(-1.0, 1.0)}, border_low, border_high,
-                         {off_border, oneof([border_low, border_high]), range(-3, 3)}]).
+%% (Moves that mostly keep a corner in its cell weigh more: with all six
+%% kinds equally likely, only 4 % of cases had all six corners in the
+%% region, the only cases where the property checks anything; now 13 %.)
+corner_move() -> frequency([{2, none}, {2, {steps, range(-2, 2)}}, {2, {frac, float(-0.05, 0.05)}},
+                            {1, {frac, float(-1.0, 1.0)}}, {1, border_low}, {1, border_high},
+                            {1, {off_border, oneof([border_low, border_high]), range(-3, 3)}}]).
 
 move(X, none, _S) -> X;
 move(X, {steps, N}, _S) when N >= 0 -> next_float(X, N);
@@ -646,7 +670,7 @@ prop_degenerate_input() ->
                      ?WHENFAIL(report("same ~p swept ~p apart ~p fixture ~p effects ~p",
                                       [Same, SweptSame, Apart, Fixture, Effects]),
                                valid_contact(Same) andalso valid_contact(SweptSame) andalso Apart =:= none
-                                   andalso Same#contact.depth == 2.0 * R
+                                   andalso bitwise(Same#contact.depth, 2.0 * R)
                                    andalso (Fixture =/= [] orelse is_hollow(Shape))
                                    andalso lists:all(fun({_, C}) -> valid_contact(C) end, Fixture)
                                    andalso lists:all(fun valid_effect/1, Effects))
@@ -690,8 +714,7 @@ prop_free_flight() ->
                      #st{p = P1, v = V1, w = W1, q = Q1} = rw_integrate:advance(M, St, V, W, {0.0, 0.0, 0.0}),
                      Disp = rw_integrate:free_displacement(M, St),
                      ?WHENFAIL(report("~p: ~p -> ~p, expected ~p", [Int, P, P1, rw_vec:madd(P, V, Dt)]),
-                               P1 =:= rw_vec:madd(P, V, Dt) andalso V1 =:= V andalso W1 =:= W
-                                   andalso Disp =:= rw_vec:sub(P1, P)
+                               bitwise({P1, V1, W1, Disp}, {rw_vec:madd(P, V, Dt), V, W, rw_vec:sub(P1, P)})
                                    andalso (W =:= undefined) =:= (Q1 =:= undefined))
                  end))).
 
@@ -707,7 +730,7 @@ prop_respond_is_ordered_fold() ->
                                                    {rw_vec:add(AV, Dv), add_w(AW, Dw), rw_vec:add(AU, Du)}
                                            end, {V, W, rw_vec:zero()}, Effects),
                         Got = rw_dynamics:respond(#st{p = rw_vec:zero(), v = V, w = W}, Effects),
-                        ?WHENFAIL(report("respond ~p, fold ~p", [Got, Fold]), Got =:= Fold)
+                        ?WHENFAIL(report("respond ~p, fold ~p", [Got, Fold]), bitwise(Got, Fold))
                     end))).
 
 %%% ------------------------------------------------------------------
@@ -720,22 +743,27 @@ prop_respond_is_ordered_fold() ->
 %% when members move, relative to the first one, by more than half its
 %% skin), around the origin and around 1e9 m, with fixtures and with
 %% effects of contacts outside the island.
-prop_island_equals_all_pairs() ->
+prop_island_equals_all_pairs() -> prop_island_equals_all_pairs(rw_island).
+
+%% The same for Mod, rw_island or a copy of it compiled under another name
+%% (rw_physics_prop_SUITE:island_mutants_are_caught/1 checks that mutants
+%% of its validity rules fail this).
+prop_island_equals_all_pairs(Mod) ->
     ?FORALL(Case, island_case(),
             ?SAFE(begin
                 {M, Spheres, States, Fixtures, External, Steps} = Case,
-                Island = rw_island:new(M, Spheres, Fixtures),
+                Island = Mod:new(M, Spheres, Fixtures),
                 Bodies = list_to_tuple(lists:keysort(#sphere.idx, Spheres)),
-                Got = island_run(Steps, Island, list_to_tuple(States), External, []),
+                Got = island_run(Mod, Steps, Island, list_to_tuple(States), External, []),
                 Expected = all_pairs_run(Steps, M, Bodies, Fixtures, list_to_tuple(States), External, []),
-                ?WHENFAIL(report("first difference at substep ~p", [first_difference(Got, Expected, 0)]),
-                          Got =:= Expected)
+                ?WHENFAIL(report("~p: first difference at substep ~p", [Mod, first_difference(Got, Expected, 0)]),
+                          bitwise(Got, Expected))
             end)).
 
-island_run(0, _Island, _States, _External, Acc) -> lists:reverse(Acc);
-island_run(K, Island, States, External, Acc) ->
-    {Posts, Next, Island1} = rw_island:step(Island, States, External),
-    island_run(K - 1, Island1, Next, External, [{Posts, Next} | Acc]).
+island_run(_Mod, 0, _Island, _States, _External, Acc) -> lists:reverse(Acc);
+island_run(Mod, K, Island, States, External, Acc) ->
+    {Posts, Next, Island1} = Mod:step(Island, States, External),
+    island_run(Mod, K - 1, Island1, Next, External, [{Posts, Next} | Acc]).
 
 %% The reference's way, every pair in canonical order, fixtures first.
 all_pairs_run(0, _M, _Bodies, _Fixtures, _States, _External, Acc) -> lists:reverse(Acc);
@@ -773,8 +801,11 @@ all_pairs_run(K, M, Bodies, Fixtures, States, External, Acc) ->
                           end || I <- Ks]),
     all_pairs_run(K - 1, M, Bodies, Fixtures, Next, External, [{Posts, Next} | Acc]).
 
-first_difference([X | A], [X | B], K) -> first_difference(A, B, K + 1);
-first_difference([X | _], [Y | _], K) -> {K, X, Y};
+first_difference([X | A], [Y | B], K) ->
+    case bitwise(X, Y) of
+        true -> first_difference(A, B, K + 1);
+        false -> {K, X, Y}
+    end;
 first_difference(_, _, K) -> {K, length_differs}.
 
 %% {Model, Spheres, States, Fixtures, External, Substeps}: 2-12 spheres

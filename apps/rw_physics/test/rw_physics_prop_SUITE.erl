@@ -8,10 +8,13 @@
          depth_along_normal/1, cylinder_depth_along_normal/1, swept_toi/1, degenerate_input/1,
          quat_integrate/1, free_flight/1, respond_is_ordered_fold/1, container_is_six_walls/1,
          fixture_box_skips_only_misses/1, fixture_then_pair_energy/1, island_equals_all_pairs/1,
-         sweep_spheres_equals_all_pairs/1, sweep_spans_equals_all_pairs/1, grid_equals_shared_cells/1]).
+         sweep_spheres_equals_all_pairs/1, sweep_spans_equals_all_pairs/1, grid_equals_shared_cells/1,
+         island_mutants_are_caught/1]).
 
 %% Tests per property; the whole suite takes a few seconds.
 -define(NUMTESTS, 1000).
+%% Cases a mutant of the island may survive (each is caught well before).
+-define(MUTANT_TESTS, 3000).
 
 suite() -> [{timetrap, {minutes, 3}}].
 
@@ -20,7 +23,7 @@ all() -> [pair_momentum, pair_angular_momentum, pair_energy, fixture_energy, res
           cylinder_depth_along_normal, swept_toi, degenerate_input, quat_integrate, free_flight,
           respond_is_ordered_fold, container_is_six_walls, fixture_box_skips_only_misses,
           fixture_then_pair_energy, island_equals_all_pairs, sweep_spheres_equals_all_pairs,
-          sweep_spans_equals_all_pairs, grid_equals_shared_cells].
+          sweep_spans_equals_all_pairs, grid_equals_shared_cells, island_mutants_are_caught].
 
 end_per_testcase(_Case, _Config) ->
     proper:global_state_erase(),
@@ -45,6 +48,71 @@ island_equals_all_pairs(_) -> check(island_equals_all_pairs).
 sweep_spheres_equals_all_pairs(_) -> check(sweep_spheres_equals_all_pairs).
 sweep_spans_equals_all_pairs(_) -> check(sweep_spans_equals_all_pairs).
 grid_equals_shared_cells(_) -> check(grid_equals_shared_cells).
+
+%% The island property can fail where it matters: each mutation below of
+%% rw_island's validity rules (a neighbour list or a fixture list used when
+%% a contact may be missing from it) is applied to the source text at test
+%% time, compiled under a module name of its own into this case's private
+%% directory (no mutant is ever committed or left on the code path), and
+%% must make prop_island_equals_all_pairs fail within ?MUTANT_TESTS cases.
+%% The unmutated source, compiled the same way, must pass: the mutation,
+%% not the copy, is what fails. Each mutated text must occur exactly once
+%% in rw_island.erl: when the source changes, this case fails until the
+%% mutations are brought up to date (they can never silently test nothing).
+%% (Changing the drift term is not among them: whatever one vector is taken
+%% off every member's move, two members that each moved less than half the
+%% skin relative to it moved less than the skin relative to each other; the
+%% first member's move only keeps the list of a pile falling as one. A
+%% drift reversed or dropped, tried, is rightly not caught.)
+island_mutants_are_caught(Config) ->
+    Dir = ?config(priv_dir, Config),
+    Source = filename:join([code:lib_dir(rw_physics), "src", "rw_island.erl"]),
+    {ok, Bin} = file:read_file(Source),
+    Text = binary_to_list(Bin),
+    Control = compile_copy(Dir, Text, rw_island_copy),
+    true = proper:quickcheck(rw_physics_prop:prop_island_equals_all_pairs(Control),
+                             [{numtests, 200}, {to_file, user}, long_result]),
+    proper:global_state_erase(),
+    Caught = [begin
+                  1 = count(Text, From),
+                  Mutant = compile_copy(Dir, string:replace(Text, From, To), list_to_atom("rw_island_" ++ atom_to_list(Name))),
+                  case proper:quickcheck(rw_physics_prop:prop_island_equals_all_pairs(Mutant),
+                                         [{numtests, ?MUTANT_TESTS}, noshrink, {to_file, user}, long_result]) of
+                      true -> ct:fail({mutant_survived, Name, From, To});
+                      [Counterexample] ->
+                          proper:global_state_erase(),
+                          ct:pal("~p (~s -> ~s) caught by ~P", [Name, From, To, Counterexample, 12]),
+                          Name
+                  end
+              end || {Name, From, To} <- island_mutations()],
+    {comment, io_lib:format("~b mutants caught", [length(Caught)])}.
+
+%% {Name, Text, Replacement}: rules that, so broken, let a list miss a
+%% contact that a test of every pair finds.
+island_mutations() ->
+    [%% a neighbour list valid while members move a whole skin, not half:
+     %% two members closing from either side then cover twice the skin
+     {full_skin, "Limit = 0.5 * Skin - 1.0e-9 * Scale", "Limit = Skin - 1.0e-9 * Scale"},
+     %% with CCD, a member's displacement over the substep no longer counts
+     %% against the list's margin
+     {no_ccd_spread, "Moved + vlen(vsub(element(K, Disps), Disp0)) =< Limit", "Moved =< Limit"},
+     %% without CCD moves are compared squared: against the limit itself,
+     %% not squared, members may move several times half the skin
+     {unsquared_limit, "Anchors, Drift, Limit * Limit)", "Anchors, Drift, Limit)"},
+     %% fixtures listed only when within a radius of a member, without the
+     %% half skin it may still move
+     {no_fixture_margin, "R + 0.5 * Reach)", "R)"}].
+
+count(Text, Part) -> length(string:split(Text, Part, all)) - 1.
+
+%% Text (rw_island's source) compiled and loaded as module Name.
+compile_copy(Dir, Text, Name) ->
+    Renamed = string:replace(Text, "-module(rw_island).", "-module(" ++ atom_to_list(Name) ++ ").", leading),
+    File = filename:join(Dir, atom_to_list(Name) ++ ".erl"),
+    ok = file:write_file(File, Renamed),
+    {ok, Name, Beam} = compile:file(File, [binary, return_errors, {i, code:lib_dir(rw_physics, include)}]),
+    {module, Name} = code:load_binary(Name, File, Beam),
+    Name.
 pair_angular_momentum(_) -> check(pair_angular_momentum).
 pair_energy(_) -> check(pair_energy).
 fixture_energy(_) -> check(fixture_energy).
