@@ -94,11 +94,14 @@ gather(Type, Msg, D) -> message(Type, Msg, D).
 
 %% Every message of the protocol goes to the entity; anything else is
 %% logged and dropped.
-message(info, Msg, D) when is_tuple(Msg), tuple_size(Msg) > 1 ->
-    case lists:member(element(1, Msg), [event, antievent, ack, gvt, watch, reached, regroup, bundle]) of
-        true -> run(Msg, D);
-        false -> unexpected(info, Msg, D)
-    end;
+message(info, {event, _, _, _, _, _, _} = Msg, D) -> run(Msg, D);
+message(info, {antievent, _, _, _} = Msg, D) -> run(Msg, D);
+message(info, {ack, _, _} = Msg, D) -> run(Msg, D);
+message(info, {gvt, _} = Msg, D) -> run(Msg, D);
+message(info, {watch, _, _} = Msg, D) -> run(Msg, D);
+message(info, {reached, _, _} = Msg, D) -> run(Msg, D);
+message(info, {regroup, _, _} = Msg, D) -> run(Msg, D);
+message(info, {bundle, _, _, _, _} = Msg, D) -> run(Msg, D);
 message(Type, Msg, D) -> unexpected(Type, Msg, D).
 
 unexpected(Type, Msg, #data{entity = E}) ->
@@ -146,16 +149,15 @@ drain_more(Msg, D) ->
 
 %% The entity handles Msg; its effects are carried out, and a call's answer
 %% goes back to it.
-feed(Msg, #data{entity = E} = D) ->
-    {Phase, E1, Effects} = handle(Msg, E, D),
+feed(Msg, #data{entity = E, sim = Sim} = D) ->
+    {Phase, E1, Effects} = case Sim of
+                               #sim{profile = false} -> rw_entity:handle(Msg, E);
+                               #sim{stats = Stats} -> profiled_handle(Stats, stage(Msg), Msg, E)
+                           end,
     perform(Effects, Phase, D#data{entity = E1}).
 
-handle(Msg, E, #data{sim = #sim{profile = false}}) -> rw_entity:handle(Msg, E);
-handle(Msg, E, #data{sim = #sim{stats = Stats}}) ->
-    case stage(Msg) of
-        none -> rw_entity:handle(Msg, E);
-        Stage -> rw_stats:timed(Stats, Stage, fun() -> rw_entity:handle(Msg, E) end)
-    end.
+profiled_handle(_Stats, none, Msg, E) -> rw_entity:handle(Msg, E);
+profiled_handle(Stats, Stage, Msg, E) -> rw_stats:timed(Stats, Stage, fun() -> rw_entity:handle(Msg, E) end).
 
 stage({step, _, _}) -> integrate_reductions;
 stage({gvt, _}) -> gvt_reductions;
@@ -166,9 +168,12 @@ perform([], Phase, D) ->
     {Phase, D};
 perform([{tvht_write, T0, Spheres, Steps, Last}], _Phase, #data{sim = Sim} = D) ->
     #sim{buckets = Buckets, scene = #scene{model = M, cell_size = Cell, substep = Dt}} = Sim,
+    Planner = fun() -> rw_tvht_plan:write(self(), T0, Spheres, Steps, M, {Cell, Dt}, tuple_size(Buckets)) end,
     %% hashing the states to cells and buckets is collision-checking work
-    {Write, Plan} = profiled(Sim, tvht_reductions,
-                             fun() -> rw_tvht_plan:write(self(), T0, Spheres, Steps, M, {Cell, Dt}, tuple_size(Buckets)) end),
+    {Write, Plan} = case Sim of
+                        #sim{profile = false} -> Planner();
+                        #sim{stats = Stats} -> rw_stats:timed(Stats, tvht_reductions, Planner)
+                    end,
     maybe_delay(D),
     {UpTo, Hits, Ids, Where} = rw_tvht:write(Buckets, Write, Plan, Last),
     feed({reply, {written, UpTo, Hits, Ids, Where}}, D);
@@ -189,7 +194,9 @@ effect({watch, PIdx, Lvt}, #data{sim = #sim{owners = Owners}} = D) ->
     Pid ! {watch, self(), Lvt},
     ok;
 effect({publish_lvt, Idxs, Lvt}, #data{sim = #sim{lvts = Lvts}}) ->
-    lists:foreach(fun(I) -> atomics:put(Lvts, rw_sim:lvt_slot(I), Lvt) end, Idxs);
+    publish(Idxs, Lvts, Lvt);
+effect({commit, T, Records}, #data{sim = #sim{profile = false} = Sim}) ->
+    rw_commits:commit(Sim, T, Records);
 effect({commit, T, Records}, #data{sim = Sim}) ->
     profiled(Sim, gvt_reductions, fun() -> rw_commits:commit(Sim, T, Records) end);
 effect({withdraw, Times, Idxs}, #data{sim = Sim}) ->
@@ -206,6 +213,11 @@ effect({regroup_ack, S}, #data{sim = #sim{gvt = Gvt}}) ->
 effect({own, Idxs}, #data{sim = #sim{owners = Owners}}) ->
     true = ets:insert(Owners, [{I, self()} || I <- Idxs]),
     ok.
+
+publish([], _Lvts, _Lvt) -> ok;
+publish([I | Rest], Lvts, Lvt) ->
+    ok = atomics:put(Lvts, rw_sim:lvt_slot(I), Lvt),
+    publish(Rest, Lvts, Lvt).
 
 profiled(#sim{profile = false}, _Stage, Fun) -> Fun();
 profiled(#sim{stats = Stats}, Stage, Fun) -> rw_stats:timed(Stats, Stage, Fun).

@@ -9,11 +9,15 @@
 -module(rw_commits).
 -include("rigidwarp.hrl").
 -export([commit/3, withdraw/3, complete/2, forget/2, select_at/2, delete_at/2]).
+-export_type([record/0]).
+
+%% A body's committed state at a sync point, keyed by time and idx.
+-type record() :: {{non_neg_integer(), non_neg_integer()}, rw_reference:body_frame()}.
 
 %% Commit the records of an entity's members at sync point T.
--spec commit(#sim{}, non_neg_integer(), [{non_neg_integer(), rw_reference:body_frame()}]) -> ok.
+-spec commit(#sim{}, non_neg_integer(), [record()]) -> ok.
 commit(#sim{records = Records, counts = Counts, n = N, gvt = Gvt}, T, Rows) ->
-    true = ets:insert(Records, [{{T, Idx}, Frame} || {Idx, Frame} <- Rows]),
+    true = ets:insert(Records, Rows),
     case ets:update_counter(Counts, T, length(Rows), {T, 0}) of
         N -> Gvt ! {complete, T}, ok;
         _ -> ok

@@ -82,7 +82,7 @@
         {send, addr(), term()}                              % to another entity or a watcher
       | {watch, Idx :: non_neg_integer(), Lvt :: non_neg_integer()}  % to the entity stepping body Idx
       | {publish_lvt, [non_neg_integer()], non_neg_integer()}
-      | {commit, non_neg_integer(), [{non_neg_integer(), rw_reference:body_frame()}]}
+      | {commit, non_neg_integer(), [rw_commits:record()]}
       | {withdraw, [non_neg_integer()], [non_neg_integer()]}
       | {count, rw_stats:name(), non_neg_integer()}
       | {met, non_neg_integer(), non_neg_integer(), non_neg_integer()}
@@ -178,8 +178,11 @@ new(Self, #scene{model = M, substep = Dt, stride = Stride, fixtures = Fixtures},
 %% to carry out in order.
 -spec handle(message(), entity()) -> {phase(), entity(), [effect()]}.
 handle(Msg, #e{effects = []} = E0) ->
-    #e{effects = Effects} = E = dispatch(Msg, E0),
-    {E#e.phase, E#e{effects = []}, lists:reverse(Effects)}.
+    case dispatch(Msg, E0) of
+        #e{effects = []} = E -> {E#e.phase, E, []};
+        #e{effects = [_] = Effects} = E -> {E#e.phase, E#e{effects = []}, Effects};
+        #e{effects = Effects} = E -> {E#e.phase, E#e{effects = []}, lists:reverse(Effects)}
+    end.
 
 %% The outside bodies whose LVT limits how far this entity may step (the
 %% neighbour rule): {step, Gvt, Lvts} must bring their LVTs.
@@ -513,7 +516,8 @@ wait(false, #e{lvt = Lvt, gvt = G, conf = #conf{stride = S, end_t = End, cal = C
 wake_at(At, #e{wake_at = Asked} = E) when is_integer(Asked), Asked =< At -> E;   % already asked for as early
 wake_at(At, E) -> emit({wake_at, At}, E#e{wake_at = At}).
 
-%% Commit every member's state at sync point T: its frame record.
+%% Commit every member's state at sync point T: its frame record, keyed by
+%% time and body.
 commit(T, States, Posts, E) ->
     case uncommitted(T, E) of
         true -> commit_now(T, States, Posts, E);
@@ -529,7 +533,7 @@ commit_now(T, States, Posts, #e{spheres = Spheres, timeline = TL} = E) ->
                    #sphere{idx = Idx, id = Id} = element(K, Spheres),
                    #st{p = P, q = Q} = element(K, States),
                    {V, W, _U} = element(K, Posts),
-                   {Idx, {Id, P, V, Q, W}}
+                   {{T, Idx}, {Id, P, V, Q, W}}
                end || K <- lists:seq(1, tuple_size(Spheres))],
     emit({commit, T, Records}, E#e{timeline = rw_timeline:commit(T, TL)}).
 

@@ -1,7 +1,7 @@
 %% Contact groups: which bodies the Time Warp engine steps together as one
-%% entity (rw_body with several members, stepped by rw_island). Pure: the
+%% entity (rw_entity with several members, stepped by rw_island). Pure: the
 %% GVT process calls it at regroup points with every body's committed
-%% state, and writes the moves it returns into the plans table.
+%% state, and sends each entity whose group changes its move.
 %%
 %% Bodies in persistent contact belong together: as separate entities they
 %% meet at every substep and exchange a TVHT write, an event and an

@@ -289,20 +289,13 @@ stuck(#m{phase = Phase, ents = Ents, gp = #gvtp{g = G, unready = U}}) ->
 final_errors(#m{errors = [_ | _] = Errors}, _Ref) -> Errors;
 final_errors(#m{gp = #gvtp{frames = Frames}} = M, Ref) ->
     Got = lists:reverse(Frames),
-    [{frames_differ, first_diff(Ref, Got)} || not rw_test_lib:bitwise_equal(Ref, Got)]
+    [{frames_differ, rw_test_lib:first_difference(Ref, Got)} || not rw_test_lib:bitwise_equal(Ref, Got)]
         ++ [{antievent_not_acked_once, K, maps:get(K, M#m.anti_acks, 0)}
             || K <- maps:keys(M#m.antievents), maps:get(K, M#m.anti_acks, 0) =/= 1]
         ++ [{event_neither_acked_nor_cancelled, Cid}
             || Cid <- maps:keys(M#m.events), not maps:is_key(Cid, M#m.event_acks), not cancelled(Cid, M)].
 
 cancelled(Cid, #m{antievents = A}) -> lists:any(fun({C, _}) -> C =:= Cid end, maps:keys(A)).
-
-first_diff([X | A], [Y | B]) ->
-    case rw_test_lib:bitwise_equal(X, Y) of
-        true -> first_diff(A, B);
-        false -> {expected, X, got, Y}
-    end;
-first_diff(A, B) -> {lengths, length(A), length(B)}.
 
 reference(Scene) ->
     Self = self(),
@@ -396,7 +389,7 @@ effect(I, {commit, T, Rows}, #m{records = R, counts = C, n = N, gp = #gvtp{g = G
             false -> fail(M0, {commit_at_or_before_gvt, I, T, G})
         end,
     Count = maps:get(T, C, 0) + length(Rows),
-    M1 = M#m{records = lists:foldl(fun({Idx, F}, Acc) -> Acc#{{T, Idx} => F} end, R, Rows), counts = C#{T => Count}},
+    M1 = M#m{records = lists:foldl(fun({Key, F}, Acc) -> Acc#{Key => F} end, R, Rows), counts = C#{T => Count}},
     case Count of
         N -> enqueue(I, gvt, {complete, T}, M1);
         _ -> M1
