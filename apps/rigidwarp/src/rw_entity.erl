@@ -105,52 +105,60 @@
     cal :: rw_sync:calendar()
 }).
 
--record(e, {
-    conf :: #conf{},
-    phase = ready :: phase(),
+%% An entity's state, as often changed (a copy per change: effects are
+%% added to it as they are decided) ...
+%% ... and as seldom changed: its make-up, the contacts that died with it,
+%% its watchers and its group's changes.
+-record(g, {
     %% the entity: the bodies this process steps, ascending idx, and where
     %% each is in that tuple (none while this body is in another's group)
     spheres = {} :: tuple(),
     idxs = [] :: [non_neg_integer()],
     pos = #{} :: #{non_neg_integer() => pos_integer()},
-    island :: rw_island:island() | undefined,
-    lvt = 0 :: non_neg_integer(),
-    gvt = -1 :: integer(),                      % -1 until the first frame
     start :: tuple() | undefined,               % the states at LVT 0, until written
     %% a group formed at S starts from its members' post-response
     %% velocities at S, computed by their old entities
     base = none :: none | {non_neg_integer(), tuple()},
-    timeline = rw_timeline:new() :: rw_timeline:timeline(),
-    pend_ev = #{} :: #{cid() => true},
-    pend_anti = #{} :: #{cid() => true},
     %% contacts that died with a state this entity deleted, whose event
     %% may still arrive: the antievent sent answers it
     ghosts = #{} :: #{cid() => true},
-    %% substeps to integrate ahead in one step: halves on rollback, doubles
-    %% (up to the stride) when a step meets nothing, so that bodies in
-    %% persistent contact do not compute far ahead only to throw it away
-    window = 1 :: pos_integer(),
     gc_at = 0 :: non_neg_integer(),             % next GVT at which to prune history
-    wake_at = none :: none | integer(),         % the GVT the GVT process will wake this entity at
     %% the regroup points where this entity's group changes, ascending (an
     %% entity that leads a new group at S may hear of the next one before
     %% it has handed over at S), and what it does at each
     stop_at = [] :: [non_neg_integer()],
     moves = #{} :: #{non_neg_integer() => rw_regroup:move()},
-    touched = rw_neighbour:new() :: rw_neighbour:touched(),
     %% processes waiting for this one to reach an LVT: Pid => LVT
     watchers = #{} :: #{addr() => non_neg_integer()},
+    %% gathering a group at S: the old leaders to hear from, what came
+    gathering = none :: none | {non_neg_integer(), [non_neg_integer()], [{non_neg_integer(), [item()]}]}
+}).
+
+-record(e, {
+    conf :: #conf{},
+    phase = ready :: phase(),
+    island :: rw_island:island() | undefined,
+    lvt = 0 :: non_neg_integer(),
+    gvt = -1 :: integer(),                      % -1 until the first frame
+    timeline = rw_timeline:new() :: rw_timeline:timeline(),
+    pend_ev = #{} :: #{cid() => true},
+    pend_anti = #{} :: #{cid() => true},
+    %% substeps to integrate ahead in one step: halves on rollback, doubles
+    %% (up to the stride) when a step meets nothing, so that bodies in
+    %% persistent contact do not compute far ahead only to throw it away
+    window = 1 :: pos_integer(),
+    wake_at = none :: none | integer(),         % the GVT the GVT process will wake this entity at
+    touched = rw_neighbour:new() :: rw_neighbour:touched(),
     watching = none :: none | {non_neg_integer(), non_neg_integer()},
     %% true while the entity waits in step with no step due (for a partner
     %% to reach its LVT, or for GVT): a watch request cannot end that wait,
     %% so it is answered without stepping again
     idle = false :: boolean(),
-    %% gathering a group at S: the old leaders to hear from, what came
-    gathering = none :: none | {non_neg_integer(), [non_neg_integer()], [{non_neg_integer(), [item()]}]},
     %% the rest of the work after the answer to a call effect
     cont = none :: none | {write, non_neg_integer(), [rw_states:packed()], non_neg_integer(), [rw_chain:passed()]}
                  | {undo, non_neg_integer(), then()},
-    effects = [] :: [effect()]                  % newest first, while handling one message
+    effects = [] :: [effect()],                 % newest first, while handling one message
+    g = #g{} :: #g{}
 }).
 -opaque entity() :: #e{}.
 
@@ -172,7 +180,7 @@ new(Self, #scene{model = M, substep = Dt, stride = Stride, fixtures = Fixtures},
     St0) ->
     Conf = #conf{self = Self, idx = Idx, id = Id, model = M, fixtures = Fixtures, dt = Dt, stride = Stride,
                  end_t = rw_sync:end_t(Cal), cal = Cal},
-    members([Sphere], #e{conf = Conf, start = {St0}}).
+    members([Sphere], #e{conf = Conf, g = #g{start = {St0}}}).
 
 %% Handle one message: the phase that follows, the entity, and the effects
 %% to carry out in order.
@@ -202,7 +210,7 @@ idx(#e{conf = #conf{idx = Idx}}) -> Idx.
 %% One line for the watchdog: phase, LVT and whom this entity waits on.
 -spec describe(entity(), non_neg_integer()) -> iolist().
 describe(#e{conf = #conf{idx = Idx, id = Id}, phase = Phase, lvt = Lvt, gvt = Gvt, pend_ev = PE, pend_anti = PA,
-            idxs = Idxs}, Unread) ->
+            g = #g{idxs = Idxs}}, Unread) ->
     Whom = fun(M) -> [other(Idx, Cid) || Cid <- maps:keys(M)] end,
     io_lib:format("body ~ts (idx ~b): ~p at LVT ~b (GVT ~b); ~b bodies; awaiting event acks from ~w, "
                   "antievent acks from ~w; ~b unread messages",
@@ -214,11 +222,11 @@ other(_Idx, {_, A, _, _}) -> A.
 %%% Dispatch by phase
 
 dispatch({reply, Reply}, #e{cont = Cont} = E) when Cont =/= none -> resume(Reply, Cont, E#e{cont = none});
-dispatch(start, #e{phase = ready, start = St0, conf = #conf{model = M}} = E) ->
+dispatch(start, #e{phase = ready, g = #g{start = St0} = G, conf = #conf{model = M}} = E) ->
     %% the initial state is written like any other, at LVT 0
-    write_states(0, [rw_chain:pack([St], M) || St <- tuple_to_list(St0)], 0, [], E#e{lvt = 0, start = undefined});
+    write_states(0, [rw_chain:pack([St], M) || St <- tuple_to_list(St0)], 0, [], E#e{lvt = 0, g = G#g{start = undefined}});
 dispatch({step, Gvt, Lvts}, #e{phase = step} = E) -> step(Gvt, Lvts, E);
-dispatch({bundle, S, _, _, _} = Msg, #e{phase = step, lvt = S, stop_at = [S | _], moves = Moves} = E) ->
+dispatch({bundle, S, _, _, _} = Msg, #e{phase = step, lvt = S, g = #g{stop_at = [S | _], moves = Moves}} = E) ->
     %% a new member arrives before this entity has seen GVT reach the
     %% regroup point (GVT is there, or no old leader would hand over):
     %% hand over now, and take the bundle in in gather
@@ -232,22 +240,22 @@ dispatch(Msg, #e{phase = Phase} = E) when Phase =:= step; Phase =:= resolve; Pha
     end;
 dispatch({bundle, S, _, _, Expect} = Msg, #e{phase = member} = E) ->
     %% this body leads a group from S on: its members are on the way
-    dispatch(Msg, E#e{phase = gather, gathering = {S, Expect, []}, lvt = S, gvt = S});
+    dispatch(Msg, E#e{phase = gather, lvt = S, gvt = S, g = (E#e.g)#g{gathering = {S, Expect, []}}});
 dispatch({regroup, S, Move}, #e{phase = member} = E) ->
     %% this body leads a group from the regroup point before S (its first
     %% member is on the way) and that group changes again at S
-    stop_at(S, E#e{moves = (E#e.moves)#{S => Move}});
+    stop_at(S, add_move(S, Move, E));
 dispatch({watch, Pid, _}, #e{phase = member, conf = #conf{idx = Idx}, lvt = Lvt} = E) ->
     %% its leader holds its LVT: let the watcher look again
     emit({send, Pid, {reached, Idx, Lvt}}, E);
-dispatch({bundle, S, From, Items, _}, #e{phase = gather, gathering = {S, Expect, Got0}} = E) ->
+dispatch({bundle, S, From, Items, _}, #e{phase = gather, g = #g{gathering = {S, Expect, Got0}} = G} = E) ->
     Got = [{From, Items} | Got0],
     case length(Got) =:= length(Expect) of
         true -> settle(form(S, lists:append([I || {_, I} <- Got]), E));
-        false -> E#e{gathering = {S, Expect, Got}}
+        false -> E#e{g = G#g{gathering = {S, Expect, Got}}}
     end;
 dispatch({watch, Pid, T}, #e{phase = gather} = E) -> on_watch(Pid, T, E);
-dispatch({regroup, S, _} = Msg, #e{phase = gather, gathering = {Now, _, _}} = E) when S > Now ->
+dispatch({regroup, S, _} = Msg, #e{phase = gather, g = #g{gathering = {Now, _, _}}} = E) when S > Now ->
     %% the group this process gathers changes again at S
     on_message(Msg, E);
 dispatch(Msg, #e{phase = Phase} = E) when Phase =:= member; Phase =:= gather ->
@@ -341,7 +349,7 @@ step(Gvt0, Lvts, E0) ->
 min_step(#e{conf = #conf{stride = S, dt = Dt}}) -> max(Dt, (S * 3 div 4) div Dt * Dt).
 
 %% Integrate from LVT to Last assuming no new contacts, and write.
-advance(Lvt, Last, #e{spheres = Spheres, island = Island0, timeline = TL, base = Base,
+advance(Lvt, Last, #e{g = #g{spheres = Spheres, base = Base}, island = Island0, timeline = TL,
                       conf = #conf{model = M, dt = Dt, cal = Cal}} = E) ->
     {Passed, Steps, Island} = rw_chain:run(Lvt, rw_timeline:state_at(Lvt, Dt, TL), Last, {M, Dt, Base, TL, Cal},
                                            Island0),
@@ -351,7 +359,7 @@ advance(Lvt, Last, #e{spheres = Spheres, island = Island0, timeline = TL, base =
 %% Write Steps (per member, its packed states from T0 on, one per substep)
 %% to the TVHT under lock; the answer (written/9) stops at the first
 %% substep with contacts.
-write_states(T0, Steps, Last, Passed, #e{spheres = Spheres} = E) ->
+write_states(T0, Steps, Last, Passed, #e{g = #g{spheres = Spheres}} = E) ->
     emit({tvht_write, T0, Spheres, Steps, Last}, E#e{cont = {write, T0, Steps, Last, Passed}}).
 
 %% The write is stored up to UpTo, the first substep with contacts, or
@@ -371,7 +379,7 @@ written(T0, Steps, _Last, Passed, UpTo, Hits, Ids, Where,
                        end, E2, Passed)).
 
 send_events(_T, [], _Ids, E) -> E;
-send_events(T, Hits, Ids, #e{spheres = Spheres, pos = Pos, timeline = TL,
+send_events(T, Hits, Ids, #e{g = #g{spheres = Spheres, pos = Pos}, timeline = TL,
                              conf = #conf{self = Self, model = M, dt = Dt}} = E0) ->
     States = rw_timeline:state_at(T, Dt, TL),
     {Mine, E} =
@@ -407,7 +415,7 @@ touch(Idx, PIdx, T, #e{touched = Touched0} = E) ->
 
 %% Publish the LVT (at every member's slot); wake the processes waiting
 %% for it.
-publish_lvt(#e{idxs = Idxs, lvt = Lvt, watchers = W, conf = #conf{idx = Idx}} = E0) ->
+publish_lvt(#e{g = #g{idxs = Idxs, watchers = W} = G, lvt = Lvt, conf = #conf{idx = Idx}} = E0) ->
     E = emit({publish_lvt, Idxs, Lvt}, E0),
     case map_size(W) of
         0 -> E;
@@ -415,7 +423,8 @@ publish_lvt(#e{idxs = Idxs, lvt = Lvt, watchers = W, conf = #conf{idx = Idx}} = 
             {Due, Later} = maps:fold(fun(Pid, T, {Du, La}) when T =< Lvt -> {[Pid | Du], La};
                                         (Pid, T, {Du, La}) -> {Du, La#{Pid => T}}
                                      end, {[], #{}}, W),
-            lists:foldl(fun(Pid, Acc) -> emit({send, Pid, {reached, Idx, Lvt}}, Acc) end, E#e{watchers = Later}, Due)
+            lists:foldl(fun(Pid, Acc) -> emit({send, Pid, {reached, Idx, Lvt}}, Acc) end, E#e{g = G#g{watchers = Later}},
+                        Due)
     end.
 
 %%% The neighbour rule's waits
@@ -427,16 +436,16 @@ watch(PIdx, #e{lvt = Lvt} = E) -> emit({watch, PIdx, Lvt}, E#e{watching = {PIdx,
 
 on_watch(Pid, T, #e{lvt = Lvt, conf = #conf{idx = Idx}} = E) when Lvt >= T ->
     emit({send, Pid, {reached, Idx, Lvt}}, E);
-on_watch(Pid, T, #e{watchers = W} = E) ->
-    E#e{watchers = W#{Pid => T}}.
+on_watch(Pid, T, #e{g = #g{watchers = W} = G} = E) ->
+    E#e{g = G#g{watchers = W#{Pid => T}}}.
 
 %%% Events and antievents
 
-on_event(Cid, T, FromIdx, From, ToIdx, Effect, #e{ghosts = Ghosts, lvt = Lvt, timeline = TL} = E) ->
+on_event(Cid, T, FromIdx, From, ToIdx, Effect, #e{g = #g{ghosts = Ghosts} = G, lvt = Lvt, timeline = TL} = E) ->
     case maps:take(Cid, Ghosts) of
         {true, Ghosts1} ->
             %% its contact died with a state we deleted; our antievent answers it
-            E#e{ghosts = Ghosts1};
+            E#e{g = G#g{ghosts = Ghosts1}};
         error when T > Lvt ->
             %% our state at T was deleted after the sender found the contact,
             %% and the sender deleted its own state first: its antievent for
@@ -475,30 +484,30 @@ then({stop_at, S}, E) -> stop_at(S, E).
 %% goes on with its answer), send antievents for the contacts they had,
 %% forget commits from R on; then Then.
 roll_back(R, Then, #e{lvt = Lvt} = E) when R >= Lvt -> then(Then, withdraw(R, E));
-roll_back(R, Then, #e{idxs = Idxs, timeline = TL} = E) ->
+roll_back(R, Then, #e{g = #g{idxs = Idxs}, timeline = TL} = E) ->
     emit({tvht_delete, rw_timeline:where_after(R, TL), Idxs, R}, E#e{cont = {undo, R, Then}}).
 
-undone(R, Lost, #e{idxs = Idxs, lvt = Lvt, timeline = TL, conf = #conf{self = Me, dt = Dt}} = E0) ->
+undone(R, Lost, #e{g = #g{idxs = Idxs} = G, lvt = Lvt, timeline = TL, conf = #conf{self = Me, dt = Dt}} = E0) ->
     %% the writes hold a state at every substep up to LVT
     E1 = count(rolled_back_substeps, (Lvt - R) div Dt * length(Idxs), E0),
     {PendAnti, Ghosts, E2} =
         lists:foldl(
-          fun({{T, _, _, _} = Cid, Detector, Other}, {PA, G, Ei}) ->
+          fun({{T, _, _, _} = Cid, Detector, Other}, {PA, Gh, Ei}) ->
                   case maps:is_key(Cid, PA) of
-                      true -> {PA, G, Ei};
+                      true -> {PA, Gh, Ei};
                       false ->
                           Partner = case Detector of Me -> Other; _ -> Detector end,
                           Known = maps:is_key(Cid, rw_timeline:contacts_at(T, TL)),
                           G1 = case Detector =/= Me andalso not Known of
-                                   true -> G#{Cid => true};
-                                   false -> G
+                                   true -> Gh#{Cid => true};
+                                   false -> Gh
                                end,
                           {PA#{Cid => true}, G1, emit({send, Partner, {antievent, Cid, T, Me}}, Ei)}
                   end
-          end, {E1#e.pend_anti, E1#e.ghosts, E1}, Lost),
+          end, {E1#e.pend_anti, G#g.ghosts, E1}, Lost),
     E3 = count(antievents, map_size(PendAnti) - map_size(E1#e.pend_anti), E2),
     withdraw(R, publish_lvt(E3#e{lvt = R, timeline = rw_timeline:truncate(R, TL), pend_ev = #{}, pend_anti = PendAnti,
-                                 ghosts = Ghosts, window = max(1, E3#e.window div 2)})).
+                                 g = G#g{ghosts = Ghosts}, window = max(1, E3#e.window div 2)})).
 
 %%% Commits (the GVT counter)
 
@@ -528,7 +537,7 @@ commit(T, States, Posts, E) ->
 uncommitted(T, #e{gvt = G, timeline = TL, conf = #conf{cal = Cal}}) ->
     T > G andalso rw_sync:is_sync(T, Cal) andalso not rw_timeline:is_committed(T, TL).
 
-commit_now(T, States, Posts, #e{spheres = Spheres, timeline = TL} = E) ->
+commit_now(T, States, Posts, #e{g = #g{spheres = Spheres}, timeline = TL} = E) ->
     Records = [begin
                    #sphere{idx = Idx, id = Id} = element(K, Spheres),
                    #st{p = P, q = Q} = element(K, States),
@@ -550,7 +559,7 @@ commit_lvt(#e{lvt = Lvt, timeline = TL, conf = #conf{dt = Dt}} = E) ->
     end.
 
 %% Take back every commit at or after T.
-withdraw(T, #e{timeline = TL, idxs = Idxs} = E) ->
+withdraw(T, #e{timeline = TL, g = #g{idxs = Idxs}} = E) ->
     case rw_timeline:withdraw(T, TL) of
         {[], _} -> E;
         {Gone, TL1} -> emit({withdraw, Gone, Idxs}, E#e{timeline = TL1})
@@ -560,50 +569,53 @@ withdraw(T, #e{timeline = TL, idxs = Idxs} = E) ->
 %% so it is done once per stride. (A wake-up may come after the entity has
 %% read a later GVT itself.)
 on_gvt(G, #e{gvt = Known} = E) when G =< Known -> E;
-on_gvt(G, #e{gc_at = At} = E) when G < At -> E#e{gvt = G};
-on_gvt(G, #e{timeline = TL, touched = Touched, conf = #conf{stride = Stride, dt = Dt}} = E) ->
+on_gvt(G, #e{g = #g{gc_at = At}} = E) when G < At -> E#e{gvt = G};
+on_gvt(G, #e{timeline = TL, touched = Touched, g = Grp, conf = #conf{stride = Stride, dt = Dt}} = E) ->
     E#e{gvt = G, touched = rw_neighbour:forget(G, Dt, Touched), timeline = rw_timeline:prune(G, TL),
-        gc_at = G + Stride}.
+        g = Grp#g{gc_at = G + Stride}}.
 
 %%% Contact groups
 
 %% This process steps Spheres from now on.
-members(Spheres0, #e{conf = #conf{model = M, fixtures = Fixtures}} = E) ->
+members(Spheres0, #e{conf = #conf{model = M, fixtures = Fixtures}, g = G} = E) ->
     Spheres = lists:keysort(#sphere.idx, Spheres0),
     Idxs = [I || #sphere{idx = I} <- Spheres],
-    E#e{spheres = list_to_tuple(Spheres), idxs = Idxs,
-        pos = maps:from_list(lists:zip(Idxs, lists:seq(1, length(Idxs)))),
+    E#e{g = G#g{spheres = list_to_tuple(Spheres), idxs = Idxs,
+                pos = maps:from_list(lists:zip(Idxs, lists:seq(1, length(Idxs))))},
         island = rw_island:new(M, Spheres, Fixtures)}.
 
 %% How far the entity may step (LVT_ub, Last) and whether that is capped at
 %% the regroup point S where its group changes; there, once GVT is S, it
 %% hands over.
-regroup(Last, #e{stop_at = []} = E) -> {Last, false, E};
-regroup(Last, #e{stop_at = [S | _]} = E) when S >= Last -> {Last, false, E};
-regroup(_Last, #e{stop_at = [S | _], lvt = S, gvt = G, moves = Moves} = E) when G >= S ->
+regroup(Last, #e{g = #g{stop_at = []}} = E) -> {Last, false, E};
+regroup(Last, #e{g = #g{stop_at = [S | _]}} = E) when S >= Last -> {Last, false, E};
+regroup(_Last, #e{g = #g{stop_at = [S | _], moves = Moves}, lvt = S, gvt = G} = E) when G >= S ->
     {handover, maps:get(S, Moves), E};
-regroup(_Last, #e{stop_at = [S | _]} = E) -> {S, true, E}.
+regroup(_Last, #e{g = #g{stop_at = [S | _]}} = E) -> {S, true, E}.
 
 %% The GVT process says this entity's group changes at S: stop there,
 %% rolling back to S first if it is already past (its states after S are
 %% no use to the new group), and say so.
-on_regroup(S, Move, #e{lvt = Lvt, moves = Moves} = E0) ->
-    E = E0#e{moves = Moves#{S => Move}},
+on_regroup(S, Move, #e{lvt = Lvt} = E0) ->
+    E = add_move(S, Move, E0),
     case Lvt > S of
         true -> roll_back(S, {stop_at, S}, E);
         false -> stop_at(S, E)
     end.
 
 %% Stop at the regroup point S, and tell the GVT process so.
-stop_at(S, #e{stop_at = StopAt} = E) ->
-    emit({regroup_ack, S}, E#e{stop_at = lists:usort([S | StopAt])}).
+stop_at(S, #e{g = #g{stop_at = StopAt} = G} = E) ->
+    emit({regroup_ack, S}, E#e{g = G#g{stop_at = lists:usort([S | StopAt])}}).
+
+%% What to do at regroup point S.
+add_move(S, Move, #e{g = #g{moves = Moves} = G} = E) -> E#e{g = G#g{moves = Moves#{S => Move}}}.
 
 %% At the regroup point S, with GVT at S: send every member's state and
 %% post-response velocities at S to its new leader, then lead a new group
 %% (gather) or wait as a member.
 handover(#{send := Sends, expect := Expect} = Move,
-         #e{lvt = S, spheres = Spheres, pos = Pos, watchers = W, timeline = TL, moves = Moves,
-            conf = #conf{idx = Idx, dt = Dt}} = E0) ->
+         #e{lvt = S, g = #g{spheres = Spheres, pos = Pos, watchers = W, moves = Moves, stop_at = [_ | StopAt]} = G,
+            timeline = TL, conf = #conf{idx = Idx, dt = Dt}} = E0) ->
     States = rw_timeline:state_at(S, Dt, TL),
     {Posts, E} = posts(S, States, E0),
     ByLeader = lists:foldl(fun({M, Leader, Pid}, Acc) ->
@@ -617,12 +629,13 @@ handover(#{send := Sends, expect := Expect} = Move,
                      end, E, maps:to_list(ByLeader)),
     %% whoever waited for this entity looks again (its bodies move on)
     E2 = lists:foldl(fun(Pid, Acc) -> emit({send, Pid, {reached, Idx, S}}, Acc) end, E1, maps:keys(W)),
-    Left = E2#e{spheres = {}, idxs = [], pos = #{}, island = undefined, base = none, timeline = rw_timeline:new(),
-                ghosts = #{}, touched = rw_neighbour:new(), watchers = #{}, watching = none, idle = false,
-                wake_at = none, stop_at = tl(E2#e.stop_at), moves = maps:remove(S, Moves)},
+    Left = G#g{spheres = {}, idxs = [], pos = #{}, base = none, ghosts = #{}, watchers = #{}, stop_at = StopAt,
+               moves = maps:remove(S, Moves)},
+    E3 = E2#e{island = undefined, timeline = rw_timeline:new(), touched = rw_neighbour:new(), watching = none,
+              idle = false, wake_at = none},
     case Move of
-        #{gather := From} -> Left#e{phase = gather, gathering = {S, From, []}};
-        _ -> Left#e{phase = member}
+        #{gather := From} -> E3#e{phase = gather, g = Left#g{gathering = {S, From, []}}};
+        _ -> E3#e{phase = member, g = Left}
     end.
 
 %% The group this process leads from S on, from its members' states and
@@ -633,13 +646,13 @@ form(S, Items, #e{conf = #conf{model = M, stride = Stride}} = E0) ->
     Packed = list_to_tuple([rw_states:pack([St], undefined, M#model.rotation, false) || {_, {_, St, _}} <- Sorted]),
     E2 = emit({own, [I || {I, _} <- Sorted]}, E1),
     %% (stop_at stays: a later regroup point may have been announced already)
-    publish_lvt(E2#e{lvt = S, gvt = S, gc_at = S + Stride,
-                     base = {S, list_to_tuple([Post || {_, {_, _, Post}} <- Sorted])},
-                     timeline = rw_timeline:add_write(S, S, [], Packed, rw_timeline:new()), window = 1,
-                     gathering = none}).
+    G = E2#e.g,
+    publish_lvt(E2#e{lvt = S, gvt = S, timeline = rw_timeline:add_write(S, S, [], Packed, rw_timeline:new()), window = 1,
+                     g = G#g{gc_at = S + Stride, base = {S, list_to_tuple([Post || {_, {_, _, Post}} <- Sorted])},
+                             gathering = none}}).
 
 %% The members' post-response velocities at T (GVT =< T =< LVT).
-posts(T, _States, #e{base = {T, Posts}} = E) -> {Posts, E};
+posts(T, _States, #e{g = #g{base = {T, Posts}}} = E) -> {Posts, E};
 posts(T, States, #e{island = I, timeline = TL} = E) ->
     {Posts, I1} = rw_island:posts(I, States, rw_timeline:external(T, TL)),
     {Posts, E#e{island = I1}}.
