@@ -170,10 +170,7 @@ perform([{tvht_write, T0, Spheres, Steps, Last}], _Phase, #data{sim = Sim} = D) 
     #sim{buckets = Buckets, scene = #scene{model = M, cell_size = Cell, substep = Dt}} = Sim,
     Planner = fun() -> rw_tvht_plan:write(self(), T0, Spheres, Steps, M, {Cell, Dt}, tuple_size(Buckets)) end,
     %% hashing the states to cells and buckets is collision-checking work
-    {Write, Plan} = case Sim of
-                        #sim{profile = false} -> Planner();
-                        #sim{stats = Stats} -> rw_stats:timed(Stats, tvht_reductions, Planner)
-                    end,
+    {Write, Plan} = profiled(Sim, tvht_reductions, Planner),
     maybe_delay(D),
     {UpTo, Hits, Ids, Where} = rw_tvht:write(Buckets, Write, Plan, Last),
     feed({reply, {written, UpTo, Hits, Ids, Where}}, D);

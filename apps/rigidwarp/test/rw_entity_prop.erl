@@ -9,7 +9,8 @@
 %% the processes' shared state (published LVTs, owners, met pairs).
 %%
 %% proper_statem drives it: each command delivers the oldest message of one
-%% channel or lets one entity with a step due take it, in random order, so
+%% channel, lets one entity with a step due take it, or takes a burst of
+%% such actions picked by a seeded generator, in random order, so
 %% rollbacks, antievents and regroups meet in orders a real run reaches
 %% only by chance. After the random prefix the run is completed in a fixed
 %% fair order. The checks are the paper's lemmas and the engine's promise:
