@@ -4,7 +4,7 @@
 %% argument.
 -module(rw_sim).
 -include("rigidwarp.hrl").
--export([new/5, for_bodies/1, lvt_slot/1, period/1]).
+-export([new/5, for_bodies/1, lvt_slot/1]).
 -export_type([options/0]).
 
 -type options() :: #{groups => boolean(), group_max => pos_integer(),
@@ -57,5 +57,4 @@ gvt_now() ->
 %% say so. Frame times are sync points anyway; regroup points of their own
 %% (every 16 substeps) added a commit per body every 16 ms, 2-5 % of the
 %% time of scenes that never regroup.
--spec period(#scene{}) -> pos_integer().
 period(#scene{substep = Dt, frame = F}) -> F * max(1, (8 * Dt + F - 1) div F).

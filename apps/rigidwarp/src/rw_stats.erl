@@ -8,7 +8,7 @@
 %% reductions, the VM's unit of work, which preemption does not inflate as
 %% it does wall time.
 -module(rw_stats).
--export([new/0, add/3, read/2, names/0, profile_names/0, timed/3, reductions/0]).
+-export([new/0, add/3, read/2, timed/3]).
 -export_type([name/0, counters/0]).
 
 -type name() :: events | antievents | primary_rollbacks | secondary_rollbacks | rolled_back_substeps
@@ -18,7 +18,6 @@
 
 %% steps: writes to the TVHT (one per step of an entity, any length);
 %% regroups: contact groups that change.
--spec names() -> [name()].
 names() ->
     [events, antievents, primary_rollbacks, secondary_rollbacks, rolled_back_substeps, computed_substeps,
      steps, regroups | profile_names()].
@@ -26,7 +25,6 @@ names() ->
 %% tvht: hashing by the entities, the rest by the buckets; rollback: an
 %% entity's own bookkeeping of a rollback (the buckets count their deletes
 %% as TVHT work); gvt: commits, the GVT process and history pruning.
--spec profile_names() -> [name()].
 profile_names() -> [tvht_reductions, integrate_reductions, rollback_reductions, gvt_reductions].
 
 -spec new() -> counters().
@@ -66,5 +64,4 @@ timed(Ref, Stage, Fun) ->
     Result.
 
 %% Work done by the calling process so far.
--spec reductions() -> non_neg_integer().
 reductions() -> element(2, erlang:process_info(self(), reductions)).

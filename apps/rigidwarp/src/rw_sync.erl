@@ -5,7 +5,7 @@
 %% advances from one sync point to the next once every body has committed
 %% it; a body that waits for GVT asks to be woken at a sync point.
 -module(rw_sync).
--export([new/4, is_sync/2, is_frame/2, after_gvt/2, last_before/2, end_t/1, frame/1, stride/1, period/1]).
+-export([new/4, is_sync/2, is_frame/2, after_gvt/2, last_before/2, end_t/1, period/1]).
 -export_type([calendar/0]).
 
 -record(cal, {
@@ -21,12 +21,6 @@ new(Frame, Stride, End, Period) -> #cal{frame = Frame, stride = Stride, end_t = 
 
 -spec end_t(calendar()) -> non_neg_integer().
 end_t(#cal{end_t = End}) -> End.
-
--spec frame(calendar()) -> pos_integer().
-frame(#cal{frame = F}) -> F.
-
--spec stride(calendar()) -> pos_integer().
-stride(#cal{stride = S}) -> S.
 
 -spec period(calendar()) -> non_neg_integer().
 period(#cal{period = P}) -> P.

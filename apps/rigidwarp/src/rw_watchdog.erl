@@ -7,7 +7,7 @@
 -module(rw_watchdog).
 -behaviour(gen_server).
 -include("rigidwarp.hrl").
--export([start_link/3, diagnose/1]).
+-export([start_link/3]).
 -export([init/1, handle_call/3, handle_cast/2, handle_info/2]).
 
 -record(w, {
@@ -58,7 +58,6 @@ handle_info(_Msg, W) ->
 
 %% Who waits on whom: each body's phase, LVT, what it awaits and how many
 %% messages it has not read yet, the bodies holding GVT back first.
--spec diagnose(#sim{}) -> string().
 diagnose(#sim{procs = Procs}) ->
     Lines = [try sys:get_state(B, 500) of
                  {_Phase, D} -> rw_body:describe(D, unread(B))
