@@ -166,8 +166,8 @@ run({File, Opts, Quiet}) ->
         {ok, Summary} ->
             io:put_chars([jiffy:encode(Summary), $\n]),
             0;
-        {error, Msg2} ->
-            io:format(standard_error, "rigidwarp: ~ts~n", [Msg2]),
+        {error, Reason} ->
+            io:format(standard_error, "rigidwarp: ~ts~n", [rigidwarp:format_error(Reason)]),
             1
     end.
 
