@@ -90,14 +90,14 @@ start(_File, Opts) ->
     {error, lists:flatten(io_lib:format("options must be a map, got ~0p", [Opts]))}.
 
 -spec stop(sim()) -> ok | {error, string()}.
-stop(Sim) -> with_sim(Sim, fun(#{run := Run}) -> rw_run:stop(Run) end).
+stop(Sim) -> with_sim(Sim, fun rw_timewarp:stop/1).
 
 -spec frames(sim()) -> rw_reference:frame() | none | {error, string()}.
 frames(Sim) -> frames(Sim, latest).
 
 -spec frames(sim(), latest | number()) -> rw_reference:frame() | none | {error, string()}.
 frames(Sim, T) ->
-    with_sim(Sim, fun(#{ring := Ring}) ->
+    with_sim(Sim, fun({rw_sim, _, Ring}) ->
                           case T of
                               latest -> rw_ring:latest(Ring);
                               _ when is_number(T), T >= 0 -> rw_ring:frame_at(Ring, T);
@@ -109,7 +109,7 @@ frames(Sim, T) ->
 %% Up to Max committed frames after T ms that are still in the ring.
 -spec frames_after(sim(), number(), pos_integer()) -> [rw_reference:frame()] | {error, string()}.
 frames_after(Sim, T, Max) when is_number(T), is_integer(Max), Max > 0 ->
-    with_sim(Sim, fun(#{ring := Ring}) -> rw_ring:frames_after(Ring, T, Max) end);
+    with_sim(Sim, fun({rw_sim, _, Ring}) -> rw_ring:frames_after(Ring, T, Max) end);
 frames_after(Sim, T, Max) ->
     with_sim(Sim, fun(_) ->
                           {error, lists:flatten(io_lib:format("frames_after needs a time in ms and a positive count, "
@@ -142,12 +142,12 @@ view(Sim, Opts) ->
                   end).
 
 -spec gvt(sim()) -> number() | {error, string()}.
-gvt(Sim) -> with_sim(Sim, fun(#{run := Run}) -> rw_run:gvt(Run) end).
+gvt(Sim) -> with_sim(Sim, fun({rw_sim, Run, _}) -> rw_run:gvt(Run) end).
 
 %% From now on, receive {rw_frame, _, Frame} for every new frame, in order
 %% and once, however often the simulation restarts after faults.
 -spec subscribe(sim()) -> ok | {error, string()}.
-subscribe(Sim) -> with_sim(Sim, fun(#{run := Run}) -> rw_run:subscribe(Run, self(), frames, false) end).
+subscribe(Sim) -> with_sim(Sim, fun({rw_sim, Run, _}) -> rw_run:subscribe(Run, self(), frames, false) end).
 
 %% Wait until the run reaches its end time (ok), the timeout passes, or
 %% faults spend its restart budget ({error, {crashed, Who, Reason}}).
@@ -160,7 +160,7 @@ await(Sim, Timeout) ->
                                                               [Timeout]))}
                   end).
 
-await_end(#{run := Run} = H, Timeout) ->
+await_end({rw_sim, Run, _} = H, Timeout) ->
     case rw_run:status(Run) of
         done -> ok;
         {crashed, Who, Reason} -> {error, {crashed, Who, Reason}};
@@ -176,7 +176,7 @@ await_end(#{run := Run} = H, Timeout) ->
 %% Every call on a simulation handle checks it first, as the escript
 %% checks its flags: a wrong argument or a stopped simulation is an
 %% {error, Message}, not a crash.
-with_sim(#{run := Run, ring := _, scene := _} = Sim, Fun) ->
+with_sim({rw_sim, Run, _} = Sim, Fun) ->
     case rw_run:is_run(Run) of
         true ->
             try Fun(Sim)

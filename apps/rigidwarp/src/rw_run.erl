@@ -21,7 +21,7 @@
 -module(rw_run).
 -behaviour(gen_server).
 -include("rigidwarp.hrl").
--export([start/2, stop/1, is_run/1, subscribe/4, status/1, stats/1, gvt/1, ring/1, processes/1]).
+-export([start/2, stop/1, is_run/1, subscribe/4, status/1, stats/1, gvt/1, ring/1, scene/1, processes/1]).
 -export([start_link/2, init/1, handle_call/3, handle_cast/2, handle_info/2, terminate/2]).
 -export_type([options/0, status/0, who/0, subscription/0]).
 
@@ -99,6 +99,9 @@ gvt(Run) -> gen_server:call(Run, gvt).
 -spec processes(pid()) -> [{pid(), rw_sim_sup:who()}].
 processes(Run) -> gen_server:call(Run, processes).
 
+-spec scene(pid()) -> #scene{}.
+scene(Run) -> gen_server:call(Run, scene).
+
 -spec ring(pid()) -> ets:tid().
 ring(Run) -> gen_server:call(Run, ring).
 
@@ -162,12 +165,16 @@ incarnate(#r{scene = Scene0, checkpoint = Checkpoint, opts = Opts} = R) ->
 teardown(#r{sup = none} = R) -> R;
 teardown(#r{sup = Sup, watched = W} = R) ->
     _ = [erlang:demonitor(Ref, [flush]) || Ref <- maps:keys(W)],
+    %% a monitor, not the link: the supervisor may be gone already, its
+    %% exit taken (a monitor of a dead process is told at once)
+    MRef = erlang:monitor(process, Sup),
     exit(Sup, shutdown),
-    receive {'EXIT', Sup, _} -> ok
+    receive {'DOWN', MRef, process, Sup, _} -> ok
     after 5000 ->
             exit(Sup, kill),
-            receive {'EXIT', Sup, _} -> ok end
+            receive {'DOWN', MRef, process, Sup, _} -> ok end
     end,
+    receive {'EXIT', Sup, _} -> ok after 0 -> ok end,
     R#r{sup = none, watched = #{}}.
 
 -spec handle_call(term(), gen_server:from(), #r{}) -> {reply, term(), #r{}}.
@@ -183,6 +190,8 @@ handle_call(gvt, _From, R) ->
     {reply, ms(gvt_tick(R), R), R};
 handle_call(processes, _From, #r{watched = W} = R) ->
     {reply, maps:values(W), R};
+handle_call(scene, _From, R) ->
+    {reply, R#r.scene, R};
 handle_call(ring, _From, R) ->
     {reply, R#r.ring, R};
 handle_call(stats, _From, R) ->

@@ -3,12 +3,12 @@
 %% the caller's side of it: the frames, checkpoints and counters.
 -module(rw_timewarp).
 -include("rigidwarp.hrl").
--export([start/2, run/2, stop/1, stats/1, end_ms/1]).
+-export([start/2, run/2, stop/1, stats/1, scene/1]).
 -export_type([handle/0, options/0]).
 
-%% run: the run's process; ring: its frame ring (rw_ring), read without
-%% asking it; scene: the scene (for the viewer).
--type handle() :: #{run := pid(), ring := ets:tid(), scene := #scene{}}.
+%% The run's process and its frame ring (rw_ring), read without asking it:
+%% a short term, which the shell prints on one line.
+-type handle() :: {rw_sim, pid(), ets:tid()}.
 -type options() :: #{buckets => pos_integer(), schedulers => pos_integer(),
                      %% the owner hears {rw_done, Run, EndMs} and {rw_crashed, Run, Who,
                      %% Reason}, and of every frame or its time if it subscribes
@@ -35,20 +35,19 @@ start(Scene, Opts) ->
     Owner = maps:get(owner, Opts, self()),
     Sub = {Owner, maps:get(subscribe, Opts, none), maps:is_key(on_checkpoint, Opts)},
     case rw_run:start(Scene, (maps:with(?RUN_KEYS, Opts))#{subscribers => [Sub]}) of
-        {ok, Run} -> {ok, #{run => Run, ring => rw_run:ring(Run), scene => Scene}};
+        {ok, Run} -> {ok, {rw_sim, Run, rw_run:ring(Run)}};
         {error, _} = Error -> Error
     end.
 
-%% The end time in ms.
--spec end_ms(handle()) -> number().
-end_ms(#{scene := Scene}) -> rw_scene:duration_ms(Scene).
+-spec scene(handle()) -> #scene{}.
+scene({rw_sim, Run, _}) -> rw_run:scene(Run).
 
 -spec stop(handle()) -> ok.
-stop(#{run := Run}) -> rw_run:stop(Run).
+stop({rw_sim, Run, _}) -> rw_run:stop(Run).
 
 %% The counters, GVT and status of a run (rw_run:stats/1).
 -spec stats(handle()) -> map().
-stats(#{run := Run}) -> rw_run:stats(Run).
+stats({rw_sim, Run, _}) -> rw_run:stats(Run).
 
 %% Run to the end, calling on_frame for every committed frame in order
 %% (without on_frame, the frames stay in the engine: only their times come
@@ -63,7 +62,7 @@ run(Scene, Opts) ->
     %% only the latest frame's records are kept, not the last 1024 frames'
     %% (deleting those at the end cost Parallel 500 40 ms)
     case start(Scene, maps:merge(#{ring_size => 1}, Opts#{owner => self(), subscribe => What})) of
-        {ok, #{run := Run} = H} ->
+        {ok, {rw_sim, Run, _} = H} ->
             Calls = #{frame => maps:get(on_frame, Opts, fun(_) -> ok end),
                       checkpoint => maps:get(on_checkpoint, Opts, fun(_) -> ok end),
                       time => case maps:find(on_progress, Opts) of

@@ -14,6 +14,8 @@
 -export_type([source/0, server/0]).
 
 -type source() :: {live, rw_timewarp:handle()} | {playback, #scene{}, [rw_reference:frame()]}.
+%% As the server keeps it: a live source with its scene, read once.
+-type kept() :: {live, rw_timewarp:handle(), #scene{}} | {playback, #scene{}, [rw_reference:frame()]}.
 -opaque server() :: #{pid := pid(), port := inet:port_number(), host := string()}.
 -type options() :: #{port => inet:port_number(), bind => inet:ip4_address()}.
 
@@ -54,7 +56,7 @@ start(Source, Opts) ->
             case inets:start(httpd, Config) of
                 {ok, Pid} ->
                     [{port, Port}] = httpd:info(Pid, [port]),
-                    persistent_term:put({?MODULE, Port}, Source),
+                    persistent_term:put({?MODULE, Port}, keep(Source)),
                     {ok, #{pid => Pid, port => Port, host => inet:ntoa(Bind)}};
                 {error, Reason} ->
                     {error, lists:flatten(io_lib:format("cannot start the viewer on port ~p: ~p",
@@ -83,9 +85,12 @@ viewer_dir() ->
             filename:join([filename:dirname(filename:dirname(Script)), "lib", "rigidwarp", "priv", "viewer"])
     end.
 
+keep({live, Sim}) -> {live, Sim, rw_timewarp:scene(Sim)};
+keep(Playback) -> Playback.
+
 %%% What the API answers (used by rw_viewer_http)
 
--spec scene_json(source()) -> map().
+-spec scene_json(kept()) -> map().
 scene_json(Source) ->
     #scene{name = Name, spheres = Spheres, fixtures = Fixtures, frame = F} = Scene = scene(Source),
     #{name => Name, frame_ms => rw_scene:ms(Scene, F),
@@ -93,7 +98,7 @@ scene_json(Source) ->
                     {playback, _, [_ | _] = Frames} -> element(2, lists:last(Frames));
                     _ -> rw_scene:duration_ms(Scene)
                 end,
-      source => case Source of {live, _} -> live; _ -> playback end,
+      source => case Source of {live, _, _} -> live; _ -> playback end,
       spheres => [#{id => Id, radius => R} || #sphere{id = Id, radius = R} <- Spheres],
       fixtures => [fixture(Fx) || Fx <- Fixtures]}.
 
@@ -105,24 +110,24 @@ fixture(#fixture{id = Id, shape = {box, C, H, Kind}}) ->
 
 vec({X, Y, Z}) -> [X, Y, Z].
 
-scene({live, #{scene := S}}) -> S;
+scene({live, _, S}) -> S;
 scene({playback, S, _}) -> S.
 
 %% Frames after T (ms), oldest first, as the frames file encodes them.
--spec frames_after(source(), number(), pos_integer()) -> [rw_reference:frame()].
+-spec frames_after(kept(), number(), pos_integer()) -> [rw_reference:frame()].
 frames_after({playback, _, Frames}, T, Max) ->
     lists:sublist([Fr || {frame, FT, _} = Fr <- Frames, FT > T], min(Max, ?MAX_FRAMES_PER_CALL));
-frames_after({live, #{ring := Ring}}, T, Max) ->
+frames_after({live, {rw_sim, _, Ring}, _}, T, Max) ->
     case alive(fun() -> rw_ring:frames_after(Ring, T, min(Max, ?MAX_FRAMES_PER_CALL)) end) of
         stopped -> [];
         Frames -> Frames
     end.
 
--spec status(source()) -> map().
+-spec status(kept()) -> map().
 status({playback, Scene, Frames}) ->
     Last = case Frames of [] -> -1; _ -> element(2, lists:last(Frames)) end,
     #{gvt => Last, end_ms => min(rw_scene:duration_ms(Scene), max(Last, 0)), frames => length(Frames)};
-status({live, Sim}) ->
+status({live, Sim, _}) ->
     case alive(fun() -> rw_timewarp:stats(Sim) end) of
         stopped -> #{error => <<"the simulation has been stopped">>};
         Stats -> Stats
