@@ -55,7 +55,7 @@
 -record(out, {
     kind :: stdout | in_place | part,
     name :: string(),                  % the path as given, for messages
-    fd :: file:io_device() | standard_io,
+    fd :: file:io_device() | standard_io | undefined,
     target = "" :: string(),           % part: the final path, after symlinks
     part = "" :: string(),
     ckpt = "" :: string(),
@@ -289,7 +289,7 @@ write_checkpoint(#out{ckpt = Ckpt} = Out, Bin) ->
             _ = file:close(Fd),
             ok = ok_or_raise(Out, Tmp, R),
             ok_or_raise(Out, Ckpt, file:rename(Tmp, Ckpt));
-        Error -> ok_or_raise(Out, Tmp, Error)
+        {error, Reason} -> raise_file(Tmp, Reason)
     end.
 
 %% The buffered lines in one write.
@@ -387,7 +387,10 @@ ok_or_raise(#out{kind = in_place, name = Name} = Out, R) -> ok_or_raise(Out, Nam
 ok_or_raise(#out{part = Part} = Out, R) -> ok_or_raise(Out, Part, R).
 
 ok_or_raise(_, _, ok) -> ok;
-ok_or_raise(_, File, {error, Reason}) ->
+ok_or_raise(_, File, {error, Reason}) -> raise_file(File, Reason).
+
+-spec raise_file(string(), term()) -> no_return().
+raise_file(File, Reason) ->
     {error, Msg} = fail(File, file:format_error(Reason)),
     error({rw_output, Msg}).
 
