@@ -40,19 +40,20 @@ end_per_suite(_Config) -> ok.
 %% ---------------------------------------------------------------- kills
 
 kill_9_and_resume(Config) ->
-    kills(Config, timewarp_args(), ?config(timewarp_frames, Config), ?config(timewarp_wall, Config), 5, {1, 2, 3}).
+    kills(Config, "kills_timewarp", timewarp_args(), ?config(timewarp_frames, Config), ?config(timewarp_wall, Config),
+          5, {1, 2, 3}).
 
 kill_9_and_resume_reference(Config) ->
-    kills(Config, reference_args(), ?config(reference_frames, Config), ?config(reference_wall, Config), 2,
-          {4, 5, 6}).
+    kills(Config, "kills_reference", reference_args(), ?config(reference_frames, Config),
+          ?config(reference_wall, Config), 2, {4, 5, 6}).
 
 %% Kills runs Times times (the first run fresh, the next ones with
 %% --resume), each after a random part of the wall time the rest of the
 %% run should take (Wall for all of it); after each kill FILE.part holds
 %% whole frame lines, a prefix of the uninterrupted run's; a last --resume
 %% completes the run, byte for byte the uninterrupted one.
-kills(Config, Args, Expected, Wall, Times, Seed) ->
-    Dir = workdir(Config, "kills"),
+kills(Config, Name, Args, Expected, Wall, Times, Seed) ->
+    Dir = workdir(Config, Name),
     F = filename:join(Dir, "f.jsonl"),
     {ok, Want} = file:read_file(Expected),
     End = list_to_integer(lists:nth(3, Args)),
@@ -128,7 +129,7 @@ sigterm(Config) ->
     {frame, Last, _} = rw_frames:decode(lists:last(binary:split(Part, <<"\n">>, [global, trim_all]))),
     ?assertEqual(Ms, rw_cli_args:format_ms(Last)),
     %% the command it gives, read by a shell, completes the run
-    {0, _} = wait(start_shell("run " ++ Again ++ " --resume", Dir)),
+    {0, _} = wait(element(1, start_shell("run " ++ Again ++ " --resume", Dir))),
     {ok, Want} = file:read_file(?config(timewarp_frames, Config)),
     ?assert({ok, Want} =:= file:read_file(F)),
     ?assertEqual(["f.jsonl", "stderr"], ls(Dir)).
