@@ -8,12 +8,12 @@
 -include_lib("stdlib/include/assert.hrl").
 -include_lib("kernel/include/file.hrl").
 -export([all/0, suite/0, init_per_suite/1, end_per_suite/1]).
--export([kill_9_and_resume/1, kill_9_and_resume_reference/1, sigterm/1, sigusr1_ignored/1,
+-export([kill_9_and_resume/1, kill_9_and_resume_reference/1, sigterm/1, sighup_sigquit/1, sigusr1_ignored/1,
          frames_to_device_fifo_stdout/1, bad_output_paths/1, full_disk/1]).
 
 suite() -> [{timetrap, {minutes, 3}}].
 
-all() -> [bad_output_paths, kill_9_and_resume, kill_9_and_resume_reference, sigterm, sigusr1_ignored,
+all() -> [bad_output_paths, kill_9_and_resume, kill_9_and_resume_reference, sigterm, sighup_sigquit, sigusr1_ignored,
           frames_to_device_fifo_stdout, full_disk].
 
 %% About 2 s of wall time on the timewarp engine here, 17 MB of frames;
@@ -133,6 +133,26 @@ sigterm(Config) ->
     {ok, Want} = file:read_file(?config(timewarp_frames, Config)),
     ?assert({ok, Want} =:= file:read_file(F)),
     ?assertEqual(["f.jsonl", "stderr"], ls(Dir)).
+
+%% SIGHUP and SIGQUIT stop a run as SIGTERM does, with their own exit
+%% codes; without --frames there is nothing to resume, and the line says so.
+sighup_sigquit(Config) ->
+    Dir = workdir(Config, "sighup"),
+    F = filename:join(Dir, "f.jsonl"),
+    [begin
+         {Port, Pid} = start(["run" | reference_args()] ++ Frames, Dir),
+         timer:sleep(600),
+         os:cmd("kill -" ++ Sig ++ " " ++ Pid),
+         {Code, _} = wait(Port),
+         Err = stderr(Dir),
+         ct:pal("~s: ~b, ~ts", [Sig, Code, Err]),
+         ?assertEqual(Want, Code),
+         ?assertMatch({match, _}, re:run(Err, "\\Arigidwarp: interrupted at t=[0-9.]+ ms" ++ Line ++ "\n\\z")),
+         ?assertNot(filelib:is_file(filename:join(Dir, "erl_crash.dump")))
+     end || {Sig, Want, Frames, Line} <- [{"HUP", 129, ["--frames", F], "; continue with: rigidwarp run .* --resume"},
+                                          {"QUIT", 131, [], " \\(no --frames file to resume\\)"}]],
+    %% the checkpoint is there if the run got as far as one
+    ?assertEqual(["f.jsonl.part", "stderr"], ls(Dir) -- ["f.jsonl.checkpoint"]).
 
 sigusr1_ignored(Config) ->
     Dir = workdir(Config, "sigusr"),
