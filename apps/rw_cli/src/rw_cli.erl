@@ -155,6 +155,8 @@ summary_line(File) ->
     end.
 
 run(Args, {File, Opts, Quiet}) ->
+    %% from the start, so that no signal meets OTP's default handler
+    ok = rw_cli_signals:install(self()),
     %% a bad frames path is refused before anything is loaded or created
     Resume = maps:get(resume, Opts, false),
     Frames = maps:find(frames, Opts),
@@ -175,7 +177,6 @@ run(Args, {File, Opts, Quiet}) ->
                              true -> {#{}, fun() -> ok end};
                              false -> progress(Total, is_terminal())
                          end,
-    ok = rw_cli_signals:install(self()),
     Result = try
                  rigidwarp:run_scene(Scene, maps:merge(Opts, Progress))
              catch
