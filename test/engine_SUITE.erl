@@ -16,7 +16,7 @@
 -export([scenarios_equal/1, contact_scenes_equal/1, strides_and_buckets_equal/1, random_scenes_equal/1,
          random_delays_terminate_and_equal/1, watchdog_names_stuck_body/1,
          no_leaks_after_100_runs/1, escript_frames_identical/1, frames_api/1, frame_times_only/1, ring_keeps_last_frames/1,
-         contact_groups/1, crashes_end_the_simulation/1]).
+         contact_groups/1, crashes_restart_from_checkpoint/1]).
 
 suite() -> [{timetrap, {minutes, 15}}].
 
@@ -27,7 +27,7 @@ groups() ->
                      escript_frames_identical, contact_groups]},
      {liveness, [], [random_delays_terminate_and_equal, watchdog_names_stuck_body]},
      {lifecycle, [], [no_leaks_after_100_runs, frames_api, frame_times_only, ring_keeps_last_frames,
-                      crashes_end_the_simulation]}].
+                      crashes_restart_from_checkpoint]}].
 
 init_per_suite(Config) ->
     {ok, _} = application:ensure_all_started(rigidwarp),
@@ -498,12 +498,11 @@ random_delays_terminate_and_equal(_Config) ->
 watchdog_names_stuck_body(_Config) ->
     File = rw_test_lib:scenario("head_on_elastic.json"),
     {ok, Scene} = rigidwarp:load(File, #{until => 1000000}),
-    {ok, #{sim := _} = H} = rw_timewarp:start(Scene, #{owner => self(), watchdog_ms => 300}),
-    #{sim := #sim{procs = Procs}, gvt := Gvt} = H,
-    [{_, Body}] = ets:lookup(Procs, 0),
+    %% no restart: the stall ends the run, with the watchdog's diagnosis
+    {ok, #{run := Run} = H} = rw_timewarp:start(Scene, #{owner => self(), watchdog_ms => 300, max_restarts => 0}),
+    [Body] = [P || {P, {body, <<"a">>}} <- rw_run:processes(Run)],
     ok = sys:suspend(Body),
-    Report = receive {rw_stalled, Gvt, _G, R} -> R after 5000 -> ct:fail(no_watchdog) end,
-    sys:resume(Body),
+    Report = receive {rw_crashed, Run, stalled, {gvt_stuck, _G, R}} -> R after 5000 -> ct:fail(no_watchdog) end,
     rw_timewarp:stop(H),
     %% the suspended body is named first, as the one holding GVT back
     [_Header, First | _] = string:split(Report, "\n", all),
@@ -561,9 +560,8 @@ frame_times_only(_Config) ->
     {ok, #{frames := N}} = rw_timewarp:run(Scene, #{on_progress => fun(#{gvt := G}) -> Self ! {progress, G} end}),
     Times = [T || {frame, T, _} <- Frames],
     ?assertBitwise(Times, receive_all(progress)),
-    {ok, H} = rw_timewarp:start(Scene, #{owner => self(), subscribe => times}),
-    #{gvt := Gvt} = H,
-    receive {rw_done, Gvt, 200} -> ok after 10000 -> ct:fail(not_done) end,
+    {ok, #{run := Run} = H} = rw_timewarp:start(Scene, #{owner => self(), subscribe => times}),
+    receive {rw_done, Run, 200} -> ok after 10000 -> ct:fail(not_done) end,
     rw_timewarp:stop(H),
     ?assertBitwise(Times, receive_all(rw_frame_time)),
     ?assertEqual([], receive_all(rw_frame)),
@@ -571,18 +569,20 @@ frame_times_only(_Config) ->
 
 receive_all(progress) -> receive {progress, G} -> [G | receive_all(progress)] after 0 -> [] end;
 receive_all(rw_frame_time) -> receive {rw_frame_time, _, T} -> [T | receive_all(rw_frame_time)] after 0 -> [] end;
-receive_all(rw_frame) -> receive {rw_frame, _, F} -> [F | receive_all(rw_frame)] after 0 -> [] end.
+receive_all(rw_frame) -> receive {rw_frame, _, F} -> [F | receive_all(rw_frame)] after 0 -> [] end;
+receive_all(frame) -> receive {frame, F} -> [F | receive_all(frame)] after 0 -> [] end.
 
 %% The ring keeps the last ring_size frames, read from the records the
 %% bodies committed; the records of older frames are gone (a long run does
-%% not keep its history).
+%% not keep its history), and the ring outlives the simulation's processes.
 ring_keeps_last_frames(_Config) ->
     File = rw_test_lib:scenario("head_on_elastic.json"),
     {ok, Scene} = rigidwarp:load(File, #{until => 200}),
     {Frames, _} = frames(timewarp, Scene, #{}),
-    {ok, #{sim := #sim{records = Records, n = N}} = H} = rw_timewarp:start(Scene, #{owner => self(), ring_size => 4}),
-    #{gvt := Gvt, ring := Ring} = H,
-    receive {rw_done, Gvt, 200} -> ok after 10000 -> ct:fail(not_done) end,
+    {ok, #{run := Run, ring := Ring} = H} = rw_timewarp:start(Scene, #{owner => self(), ring_size => 4}),
+    receive {rw_done, Run, 200} -> ok after 10000 -> ct:fail(not_done) end,
+    ?assertEqual([], rw_run:processes(Run)),
+    [{source, Records, N}] = ets:lookup(Ring, source),
     Last4 = lists:nthtail(length(Frames) - 4, Frames),
     ?assertBitwise(Last4, rw_ring:frames_after(Ring, -1, 10)),
     ?assertBitwise(lists:last(Frames), rw_ring:latest(Ring)),
@@ -592,36 +592,40 @@ ring_keeps_last_frames(_Config) ->
     rw_timewarp:stop(H),
     ok.
 
-%% A crash ends its simulation and the runner reports it, leaving no
-%% simulation behind: a bucket or the GVT process at once (rest_for_one,
-%% intensity 0: {crashed, _}). A body is a temporary child, whose exit its
-%% supervisor neither restarts nor counts, so the others wait for it until
-%% the watchdog reports the stall and names it dead (after watchdog_ms).
-crashes_end_the_simulation(_Config) ->
-    {ok, Scene} = rigidwarp:load(rw_test_lib:scenario("bouncing_50_250.json"), #{until => 3000}),
+%% Any process of a simulation that dies, once: the run restarts from its
+%% latest checkpoint and its frames are those of the reference, bit for
+%% bit (the random kills of recovery_SUITE go further). With no restart
+%% left the caller hears {crashed, Who, Reason} at once, and nothing of the
+%% simulation is left behind either way.
+crashes_restart_from_checkpoint(_Config) ->
+    {ok, Scene} = rigidwarp:load(rw_test_lib:scenario("bouncing_50_250.json"), #{until => 1500}),
+    {Reference, _} = frames(reference, Scene, #{}),
     Before = supervisor:which_children(rw_sims_sup),
-    Run = fun(Victim) ->
-                  Kill = fun({frame, 100, _}) ->
-                                 [Sup] = [P || {_, P, _, _} <- supervisor:which_children(rw_sims_sup)],
-                                 Kids = supervisor:which_children(Sup),
-                                 Child = fun(Id) -> {Id, P, _, _} = lists:keyfind(Id, 1, Kids), P end,
-                                 Pid = case Victim of
-                                           body -> element(2, hd(supervisor:which_children(Child(bodies))));
-                                           bucket -> element(2, hd(supervisor:which_children(Child(buckets))));
-                                           gvt -> Child(gvt)
-                                       end,
-                                 exit(Pid, crash);
-                            (_) -> ok
+    Run = fun(Victim, Budget) ->
+                  Self = self(),
+                  Kill = fun({frame, 100, _} = F) ->
+                                 [RunPid] = [P || {_, P, _, _} <- supervisor:which_children(rw_sims_sup)] -- Before,
+                                 [Pid | _] = [P || {P, Who} <- rw_run:processes(RunPid), victim(Who) =:= Victim],
+                                 exit(Pid, crash),
+                                 Self ! {killed, erlang:monotonic_time(millisecond)},
+                                 Self ! {frame, F};
+                            (F) -> Self ! {frame, F}
                          end,
-                  T0 = erlang:monotonic_time(millisecond),
-                  Result = rw_timewarp:run(Scene, #{on_frame => Kill, watchdog_ms => 500}),
-                  Ms = erlang:monotonic_time(millisecond) - T0,
-                  ct:log("~p crashed at 100 ms: ~P after ~b ms", [Victim, Result, 6, Ms]),
+                  Result = rw_timewarp:run(Scene, #{on_frame => Kill, checkpoint_ms => 20, max_restarts => Budget}),
+                  Done = erlang:monotonic_time(millisecond),
+                  Killed = receive {killed, K} -> K after 0 -> ct:fail(not_killed) end,
+                  ct:log("~p crashed at 100 ms: ~P after ~b ms", [Victim, Result, 6, Done - Killed]),
                   ?assertEqual(Before, supervisor:which_children(rw_sims_sup)),
-                  Result
+                  {Result, Done - Killed, receive_all(frame)}
           end,
-    {error, {crashed, _}} = Run(bucket),
-    {error, {crashed, _}} = Run(gvt),
-    {error, {stalled, _, Report}} = Run(body),
-    ?assertMatch({match, _}, re:run(Report, "; dead\n")),
+    [begin
+         {{ok, #{restarts := 1}}, _, Frames} = Run(Victim, 1),
+         ?assertBitwise(Reference, Frames)
+     end || Victim <- [body, bucket, gvt, tables, watchdog]],
+    {{error, {crashed, {bucket, _}, crash}}, Ms, _} = Run(bucket, 0),
+    ?assert(Ms < 1000),
     ok.
+
+victim({body, _}) -> body;
+victim({bucket, _}) -> bucket;
+victim(Who) -> Who.

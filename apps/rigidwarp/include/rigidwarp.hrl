@@ -18,7 +18,8 @@
     frame :: pos_integer(),               % ticks
     model :: #model{},
     spheres :: [#sphere{}],          % ascending idx
-    initial :: [#st{}],              % parallel to spheres
+    initial :: [#st{}],              % parallel to spheres, at time start
+    start = 0 :: non_neg_integer(),       % ticks: 0, or the checkpoint a run resumes from
     fixtures :: [#fixture{}],        % ascending idx
     cell_size :: float(),
     buckets :: pos_integer() | undefined,

@@ -5,8 +5,8 @@
 -module(rigidwarp).
 -include("rigidwarp.hrl").
 -export([run/2, run_scene/2, load/2, help/0, start/2, stop/1, frames/1, frames/2, frames_after/3,
-         subscribe/1, await/2, gvt/1, stats/1, view/1, view/2]).
--export_type([run_options/0, summary/0]).
+         subscribe/1, await/2, gvt/1, stats/1, view/1, view/2, format_error/1]).
+-export_type([run_options/0, summary/0, error_reason/0]).
 
 -type run_options() :: #{engine => timewarp | reference,
                          buckets => pos_integer(), schedulers => pos_integer(),
@@ -17,18 +17,28 @@
                          integrator => rw_integrate:integrator(), ccd => boolean(),
                          %% contact groups (timewarp): off runs one entity per body, as the paper
                          groups => boolean(), group_max => pos_integer(),
-                         frames => file:filename(),
+                         %% recovery (timewarp): restarts from the latest checkpoint
+                         %% after a fault, at most max_restarts in restart_period_ms
+                         max_restarts => non_neg_integer(), restart_period_ms => pos_integer(),
+                         checkpoint_ms => non_neg_integer(), ring_size => pos_integer(),
+                         frames => file:filename(), resume => boolean(),
                          on_frame => fun((rw_reference:frame()) -> any()),
                          on_progress => fun((map()) -> any())}.
 -type summary() :: #{atom() => term()}.
+-type error_reason() :: string() | {crashed, rw_run:who(), term()} | {interrupted, atom(), number()}.
 %% A running Time Warp simulation (from start/2).
 -opaque sim() :: rw_timewarp:handle().
 -export_type([sim/0]).
 
--define(OPTION_KEYS, [engine, until, substep, stride, frame_ms, integrator, ccd, frames, on_frame, on_progress,
-                      buckets, schedulers, watchdog_ms, groups, group_max]).
+-define(OPTION_KEYS, [engine, until, substep, stride, frame_ms, integrator, ccd, frames, resume, on_frame,
+                      on_progress, buckets, schedulers, watchdog_ms, groups, group_max, max_restarts,
+                      restart_period_ms, checkpoint_ms, ring_size]).
 %% The options the Time Warp engine itself takes.
--define(TIMEWARP_KEYS, [buckets, watchdog_ms, groups, group_max]).
+-define(TIMEWARP_KEYS, [buckets, schedulers, watchdog_ms, groups, group_max, max_restarts, restart_period_ms,
+                        checkpoint_ms, ring_size]).
+%% What run/2 takes and start/2 cannot: start/2 hands out frames through
+%% the handle (frames/1, subscribe/1), not to a file or a callback.
+-define(RUN_ONLY_KEYS, [frames, resume, on_frame, on_progress]).
 
 -spec help() -> ok.
 help() ->
@@ -37,13 +47,14 @@ help() ->
       "  rigidwarp:run(SceneFile, Opts)  run a scene to the end, return a summary map\n"
       "      Opts: engine => reference, until => Ms, substep => Ms, stride => Ms,\n"
       "            frame_ms => Ms, integrator => verlet, ccd => true,\n"
-      "            frames => \"out.jsonl\", on_frame => fun(Frame) -> _ end\n"
+      "            frames => \"out.jsonl\", resume => true, on_frame => fun(Frame) -> _ end,\n"
+      "            max_restarts => N, restart_period_ms => Ms (the restart budget after faults)\n"
       "  rigidwarp:load(SceneFile, Opts) validate a scene, return {ok, Scene} | {error, Message}\n"
       "  rigidwarp:start(SceneFile, Opts) start a Time Warp run in the background: {ok, Sim}\n"
       "  rigidwarp:frames(Sim)           the latest committed frame\n"
       "  rigidwarp:frames(Sim, T)        the committed frame at T ms (while in the ring)\n"
       "  rigidwarp:gvt(Sim)              Global Virtual Time (ms of the latest frame)\n"
-      "  rigidwarp:stats(Sim)            GVT, realtime factor, events, rollbacks... while it runs\n"
+      "  rigidwarp:stats(Sim)            GVT, realtime factor, events, rollbacks, status, restarts\n"
       "  rigidwarp:view(Sim)             serve the live 3D viewer: {ok, Url}\n"
       "  rigidwarp:subscribe(Sim)        receive {rw_frame, _, Frame} for every new frame\n"
       "  rigidwarp:await(Sim, TimeoutMs) wait for the run to reach its end time\n"
@@ -51,61 +62,64 @@ help() ->
     ok.
 
 %% Start a Time Warp run that goes on in the background. The caller is told
-%% {rw_done, _, EndMs} when it reaches the end; frames stay readable until
-%% stop/1.
+%% {rw_done, _, EndMs} when it reaches the end, or {rw_crashed, _, Who,
+%% Reason} when faults have spent its restart budget; frames stay readable
+%% until stop/1.
 -spec start(file:filename(), run_options()) -> {ok, sim()} | {error, string()}.
-start(File, Opts) ->
-    case maps:get(engine, Opts, timewarp) of
-        timewarp ->
-            case load(File, Opts) of
-                {ok, Scene} ->
-                    case rw_timewarp:start(Scene, (maps:with(?TIMEWARP_KEYS, Opts))#{owner => self()}) of
-                        {ok, Sim} -> {ok, Sim};
-                        {error, Reason} -> {error, describe_failure(Reason)}
+start(File, Opts) when is_map(Opts) ->
+    case [K || K <- ?RUN_ONLY_KEYS, is_map_key(K, Opts)] of
+        [K | _] ->
+            {error, lists:flatten(io_lib:format("start/2 does not take ~p: run/2 does; a started simulation gives "
+                                                "its frames through frames/1,2 and subscribe/1", [K]))};
+        [] ->
+            case maps:get(engine, Opts, timewarp) of
+                timewarp ->
+                    case load(File, Opts) of
+                        {ok, Scene} ->
+                            case rw_timewarp:start(Scene, (maps:with(?TIMEWARP_KEYS, Opts))#{owner => self()}) of
+                                {ok, Sim} -> {ok, Sim};
+                                {error, Reason} -> {error, describe_failure(Reason)}
+                            end;
+                        {error, _} = Error -> Error
                     end;
-                {error, _} = Error -> Error
-            end;
-        Other ->
-            {error, lists:flatten(io_lib:format("start/2 runs the timewarp engine only, not ~p", [Other]))}
-    end.
-
-%% Every call on a simulation handle checks it first, as the escript
-%% checks its flags: a wrong argument is an {error, Message}, not a crash.
--define(IS_SIM(S), (is_map(S) andalso is_map_key(ring, S) andalso is_map_key(gvt, S)
-                    andalso is_map_key(sup, S))).
+                Other ->
+                    {error, lists:flatten(io_lib:format("start/2 runs the timewarp engine only, not ~p", [Other]))}
+            end
+    end;
+start(_File, Opts) ->
+    {error, lists:flatten(io_lib:format("options must be a map, got ~0p", [Opts]))}.
 
 -spec stop(sim()) -> ok | {error, string()}.
-stop(Sim) when ?IS_SIM(Sim) -> rw_timewarp:stop(Sim);
-stop(Other) -> not_a_sim(Other).
+stop(Sim) -> with_sim(Sim, fun(#{run := Run}) -> rw_run:stop(Run) end).
 
 -spec frames(sim()) -> rw_reference:frame() | none | {error, string()}.
 frames(Sim) -> frames(Sim, latest).
 
 -spec frames(sim(), latest | number()) -> rw_reference:frame() | none | {error, string()}.
-frames(Sim, T) when ?IS_SIM(Sim) ->
-    Ring = maps:get(ring, Sim),
-    alive(fun() ->
-                  case T of
-                      latest -> rw_ring:latest(Ring);
-                      _ when is_number(T), T >= 0 -> rw_ring:frame_at(Ring, T);
-                      _ -> {error, lists:flatten(io_lib:format("frame time must be latest or ms >= 0, got ~0p", [T]))}
-                  end
-          end);
-frames(Other, _) -> not_a_sim(Other).
+frames(Sim, T) ->
+    with_sim(Sim, fun(#{ring := Ring}) ->
+                          case T of
+                              latest -> rw_ring:latest(Ring);
+                              _ when is_number(T), T >= 0 -> rw_ring:frame_at(Ring, T);
+                              _ -> {error, lists:flatten(io_lib:format("frame time must be latest or ms >= 0, got ~0p",
+                                                                       [T]))}
+                          end
+                  end).
 
 %% Up to Max committed frames after T ms that are still in the ring.
 -spec frames_after(sim(), number(), pos_integer()) -> [rw_reference:frame()] | {error, string()}.
-frames_after(Sim, T, Max) when ?IS_SIM(Sim), is_number(T), is_integer(Max), Max > 0 ->
-    alive(fun() -> rw_ring:frames_after(maps:get(ring, Sim), T, Max) end);
-frames_after(Sim, T, Max) when ?IS_SIM(Sim) ->
-    {error, lists:flatten(io_lib:format("frames_after needs a time in ms and a positive count, got ~0p, ~0p",
-                                        [T, Max]))};
-frames_after(Other, _, _) -> not_a_sim(Other).
+frames_after(Sim, T, Max) when is_number(T), is_integer(Max), Max > 0 ->
+    with_sim(Sim, fun(#{ring := Ring}) -> rw_ring:frames_after(Ring, T, Max) end);
+frames_after(Sim, T, Max) ->
+    with_sim(Sim, fun(_) ->
+                          {error, lists:flatten(io_lib:format("frames_after needs a time in ms and a positive count, "
+                                                              "got ~0p, ~0p", [T, Max]))}
+                  end).
 
-%% Counters of a running (or finished, not yet stopped) simulation.
+%% Counters of a simulation so far: only what has been committed, and its
+%% wall time stops at the end; status is running, done or crashed.
 -spec stats(sim()) -> map() | {error, string()}.
-stats(Sim) when ?IS_SIM(Sim) -> alive(fun() -> rw_timewarp:progress(Sim, rw_gvt:gvt(maps:get(gvt, Sim))) end);
-stats(Other) -> not_a_sim(Other).
+stats(Sim) -> with_sim(Sim, fun rw_timewarp:stats/1).
 
 %% Serve the live viewer for Sim on 127.0.0.1 (port 8765 unless Opts say
 %% otherwise); open the returned URL in a browser.
@@ -113,53 +127,72 @@ stats(Other) -> not_a_sim(Other).
 view(Sim) -> view(Sim, #{}).
 
 -spec view(sim(), #{port => inet:port_number()}) -> {ok, string()} | {error, string()}.
-view(Sim, #{} = Opts) when ?IS_SIM(Sim) ->
-    ok = rw_viewer:prepare(),
-    case rw_viewer:start({live, Sim}, maps:with([port], Opts)) of
-        {ok, Server} -> {ok, rw_viewer:url(Server)};
-        {error, _} = Error -> Error
-    end;
-view(Sim, Opts) when ?IS_SIM(Sim) ->
-    {error, lists:flatten(io_lib:format("options must be a map such as #{port => 8765}, got ~0p", [Opts]))};
-view(Other, _) -> not_a_sim(Other).
+view(Sim, #{} = Opts) ->
+    with_sim(Sim, fun(_) ->
+                          ok = rw_viewer:prepare(),
+                          case rw_viewer:start({live, Sim}, maps:with([port], Opts)) of
+                              {ok, Server} -> {ok, rw_viewer:url(Server)};
+                              {error, _} = Error -> Error
+                          end
+                  end);
+view(Sim, Opts) ->
+    with_sim(Sim, fun(_) ->
+                          {error, lists:flatten(io_lib:format("options must be a map such as #{port => 8765}, got ~0p",
+                                                              [Opts]))}
+                  end).
 
 -spec gvt(sim()) -> number() | {error, string()}.
-gvt(Sim) when ?IS_SIM(Sim) -> alive(fun() -> rw_gvt:gvt(maps:get(gvt, Sim)) end);
-gvt(Other) -> not_a_sim(Other).
+gvt(Sim) -> with_sim(Sim, fun(#{run := Run}) -> rw_run:gvt(Run) end).
 
+%% From now on, receive {rw_frame, _, Frame} for every new frame, in order
+%% and once, however often the simulation restarts after faults.
 -spec subscribe(sim()) -> ok | {error, string()}.
-subscribe(Sim) when ?IS_SIM(Sim) -> alive(fun() -> rw_gvt:subscribe(maps:get(gvt, Sim), self(), frames) end);
-subscribe(Other) -> not_a_sim(Other).
+subscribe(Sim) -> with_sim(Sim, fun(#{run := Run}) -> rw_run:subscribe(Run, self(), frames, false) end).
 
--spec await(sim(), timeout()) -> ok | timeout | {error, string()}.
-await(Sim, Timeout) when ?IS_SIM(Sim), (Timeout =:= infinity orelse (is_integer(Timeout) andalso Timeout >= 0)) ->
-    alive(fun() -> await_end(Sim, Timeout) end);
-await(Sim, Timeout) when ?IS_SIM(Sim) ->
-    {error, lists:flatten(io_lib:format("timeout must be infinity or ms >= 0, got ~0p", [Timeout]))};
-await(Other, _) -> not_a_sim(Other).
+%% Wait until the run reaches its end time (ok), the timeout passes, or
+%% faults spend its restart budget ({error, {crashed, Who, Reason}}).
+-spec await(sim(), timeout()) -> ok | timeout | {error, string() | {crashed, rw_run:who(), term()}}.
+await(Sim, Timeout) when Timeout =:= infinity; is_integer(Timeout), Timeout >= 0 ->
+    with_sim(Sim, fun(H) -> await_end(H, Timeout) end);
+await(Sim, Timeout) ->
+    with_sim(Sim, fun(_) ->
+                          {error, lists:flatten(io_lib:format("timeout must be infinity or ms >= 0, got ~0p",
+                                                              [Timeout]))}
+                  end).
 
-await_end(#{gvt := Gvt, sim := Sim} = H, Timeout) ->
-    End = rw_timewarp:end_ms(Sim),
-    case rw_gvt:gvt(Gvt) >= End of
-        true -> ok;
-        false when Timeout =/= infinity, Timeout =< 0 -> timeout;
-        false ->
-            receive {rw_done, Gvt, _} -> ok
+await_end(#{run := Run} = H, Timeout) ->
+    case rw_run:status(Run) of
+        done -> ok;
+        {crashed, Who, Reason} -> {error, {crashed, Who, Reason}};
+        running when Timeout =/= infinity, Timeout =< 0 -> timeout;
+        running ->
+            receive
+                {rw_done, Run, _} -> await_end(H, Timeout);
+                {rw_crashed, Run, _, _} -> await_end(H, Timeout)
             after 50 -> await_end(H, case Timeout of infinity -> infinity; _ -> Timeout - 50 end)
             end
     end.
 
-not_a_sim(Other) ->
+%% Every call on a simulation handle checks it first, as the escript
+%% checks its flags: a wrong argument or a stopped simulation is an
+%% {error, Message}, not a crash.
+with_sim(#{run := Run, ring := _, scene := _} = Sim, Fun) ->
+    case rw_run:is_run(Run) of
+        true ->
+            try Fun(Sim)
+            catch
+                exit:{noproc, _} -> stopped();
+                exit:{normal, _} -> stopped();
+                exit:{shutdown, _} -> stopped();
+                error:badarg -> stopped()
+            end;
+        false -> stopped()
+    end;
+with_sim(Other, _Fun) ->
     {error, lists:flatten(io_lib:format("not a simulation (use the Sim that rigidwarp:start/2 returned), got ~0P",
                                         [Other, 8]))}.
 
-%% A stopped simulation's processes and tables are gone.
-alive(Fun) ->
-    try Fun()
-    catch
-        exit:{noproc, _} -> {error, "the simulation has been stopped"};
-        error:badarg -> {error, "the simulation has been stopped"}
-    end.
+stopped() -> {error, "the simulation has been stopped"}.
 
 %% Load and validate a scene with the overrides in Opts.
 -spec load(file:filename(), run_options()) -> {ok, #scene{}} | {error, string()}.
@@ -176,7 +209,12 @@ load(File, Opts) ->
             Error
     end.
 
--spec run(file:filename(), run_options()) -> {ok, summary()} | {error, string()}.
+%% Run a scene to its end. With frames => File, the frames go to File
+%% (a regular file is written as File.part with a checkpoint beside it and
+%% renamed at the end); resume => true continues an interrupted run of
+%% the same scene and options from its latest checkpoint. Whatever
+%% happens, nothing of the run is left behind but the frames so far.
+-spec run(file:filename(), run_options()) -> {ok, summary()} | {error, error_reason()}.
 run(File, Opts) ->
     case load(File, Opts) of
         {ok, Scene} -> run_scene(Scene, Opts);
@@ -184,29 +222,41 @@ run(File, Opts) ->
     end.
 
 %% Run a scene that load/2 returned.
--spec run_scene(#scene{}, run_options()) -> {ok, summary()} | {error, string()}.
+-spec run_scene(#scene{}, run_options()) -> {ok, summary()} | {error, error_reason()}.
 run_scene(Scene, Opts) ->
     Engine = maps:get(engine, Opts, timewarp),
-    case open_sink(Opts) of
-        {ok, Sink, Close} ->
+    case open_output(Scene, Opts) of
+        {ok, From} ->
             ok = load_engine(),
             T0 = erlang:monotonic_time(microsecond),
-            try run_engine(Engine, Scene, Sink, Opts) of
-                {error, Reason} ->
-                    ok = Close(abort),
-                    {error, describe_failure(Reason)};
+            Result = try run_engine(Engine, Scene, From, Opts)
+                     catch
+                         throw:{rw_interrupt, Signal, Ms} -> {error, {interrupted, Signal, Ms}};
+                         error:{rw_output, Message} -> {error, Message};
+                         Class:Raised:Stack -> {error, {raised, Class, Raised, Stack}}
+                     end,
+            case Result of
                 {ok, Stats} ->
                     Wall = erlang:monotonic_time(microsecond) - T0,
-                    ok = Close(ok),
-                    {ok, summary(Scene, Engine, Stats, Wall)}
-            catch
-                Class:Reason:Stack ->
-                    ok = Close(abort),
-                    erlang:raise(Class, Reason, Stack)
+                    case close_output(finish) of
+                        ok -> {ok, summary(Scene, Engine, From, Stats, Wall)};
+                        {error, _} = Error -> Error
+                    end;
+                {error, Why} ->
+                    ok = close_output(suspend),
+                    {error, failure(Why)}
             end;
         {error, _} = Error ->
             Error
     end.
+
+%% One line for any error of run/2 and run_scene/2.
+-spec format_error(error_reason()) -> string().
+format_error({crashed, Who, Reason}) ->
+    lists:flatten(io_lib:format("the simulation crashed past its restart budget: ~0p died: ~0P", [Who, Reason, 12]));
+format_error({interrupted, Signal, Ms}) ->
+    lists:flatten(io_lib:format("interrupted by ~s at t=~p ms", [Signal, Ms]));
+format_error(Message) when is_list(Message) -> Message.
 
 %% The application started and every engine module loaded before the
 %% clock starts: wall_ms is the simulation's. The escript loads modules
@@ -217,64 +267,107 @@ load_engine() ->
     Mods = lists:append([Ms || App <- [rigidwarp, rw_physics], {ok, Ms} <- [application:get_key(App, modules)]]),
     code:ensure_modules_loaded(Mods).
 
-run_engine(reference, Scene, none, Opts) ->
-    run_engine(reference, Scene, fun(_) -> ok end, Opts);
-run_engine(reference, Scene, Sink, Opts) ->
-    End = rw_scene:duration_ms(Scene),
-    OnFrame = case maps:find(on_progress, Opts) of
-                  {ok, P} ->
-                      T0 = erlang:monotonic_time(millisecond),
-                      fun({frame, T, _} = F) ->
-                              Sink(F),
-                              Wall = max(1, erlang:monotonic_time(millisecond) - T0),
-                              P(#{gvt => T, end_ms => End, wall_ms => Wall, realtime_factor => T / Wall})
-                      end;
-                  error -> Sink
-              end,
-    rw_reference:run(Scene, #{on_frame => OnFrame});
-run_engine(timewarp, Scene, Sink, Opts) ->
-    TwOpts0 = maps:with([on_progress | ?TIMEWARP_KEYS], Opts),
-    %% no sink, no frames out of the engine (only their times)
-    TwOpts = case Sink of none -> TwOpts0; _ -> TwOpts0#{on_frame => Sink} end,
-    with_schedulers(maps:get(schedulers, Opts, undefined), fun() -> rw_timewarp:run(Scene, TwOpts) end).
+%% Where the frames and checkpoints of a run go: the output (rw_output),
+%% kept in this process's dictionary while the run lasts (the engines call
+%% back into this process), and on_frame.
+-define(OUTPUT, {?MODULE, output}).
 
-with_schedulers(undefined, Fun) -> Fun();
-with_schedulers(N, Fun) ->
-    Old = erlang:system_flag(schedulers_online, min(N, erlang:system_info(schedulers))),
-    try Fun() after erlang:system_flag(schedulers_online, Old) end.
+open_output(Scene, #{frames := Path} = Opts) ->
+    Resume = maps:get(resume, Opts, false),
+    case rw_output:check(Path, Resume) of
+        ok ->
+            case rw_output:open(Path, rw_scene:fingerprint(Scene), Resume) of
+                {ok, Out, From} ->
+                    put(?OUTPUT, Out),
+                    {ok, From};
+                {error, _} = Error -> Error
+            end;
+        {error, _} = Error -> Error
+    end;
+open_output(_Scene, #{resume := true}) ->
+    {error, "resume needs frames (the file of the run to continue)"};
+open_output(_Scene, _Opts) ->
+    {ok, fresh}.
 
-describe_failure({stalled, Gvt, Report}) ->
-    lists:flatten(io_lib:format("GVT did not advance past ~p ms:~n~ts", [Gvt, Report]));
-describe_failure({crashed, Reason}) ->
-    lists:flatten(io_lib:format("the simulation crashed: ~p", [Reason]));
-describe_failure(Other) ->
-    lists:flatten(io_lib:format("~p", [Other])).
-
-%% Where frames go: a file, on_frame, both, or nowhere (none).
-open_sink(Opts) ->
-    User = maps:get(on_frame, Opts, none),
-    case maps:find(frames, Opts) of
-        error ->
-            {ok, User, fun(_) -> ok end};
-        {ok, File} ->
-            case rw_frames:writer(File) of
-                {ok, Write, Close} when User =:= none ->
-                    {ok, Write, Close};
-                {ok, Write, Close} ->
-                    {ok, fun(F) -> Write(F), User(F) end, Close};
-                {error, Reason} ->
-                    {error, lists:flatten(io_lib:format("cannot write frames to ~ts: ~ts",
-                                                        [File, file:format_error(Reason)]))}
-            end
+close_output(How) ->
+    case erase(?OUTPUT) of
+        undefined -> ok;
+        Out when How =:= finish -> rw_output:finish(Out);
+        Out -> rw_output:suspend(Out)
     end.
 
-%% The engine's own counters, plus what every run reports.
-summary(#scene{name = Name, substep = Dt, stride = Stride, spheres = Spheres} = Scene, Engine, Stats, WallUs) ->
+write_frame(Frame) -> put(?OUTPUT, rw_output:frame(get(?OUTPUT), Frame)).
+
+write_checkpoint(Checkpoint) -> put(?OUTPUT, rw_output:checkpoint(get(?OUTPUT), Checkpoint)).
+
+%% The frame sink: the output, then on_frame; none when neither wants frames.
+sink(Opts) ->
+    case {get(?OUTPUT), maps:get(on_frame, Opts, none)} of
+        {undefined, none} -> none;
+        {undefined, User} -> User;
+        {_, none} -> fun write_frame/1;
+        {_, User} -> fun(F) -> write_frame(F), User(F) end
+    end.
+
+checkpoint_sink() ->
+    case get(?OUTPUT) of
+        undefined -> #{};
+        _ -> #{on_checkpoint => fun write_checkpoint/1}
+    end.
+
+run_engine(reference, Scene0, From, Opts) ->
+    Scene = case From of fresh -> Scene0; _ -> rw_scene:from_checkpoint(Scene0, From) end,
+    End = rw_scene:duration_ms(Scene),
+    Sink = case sink(Opts) of none -> fun(_) -> ok end; S -> S end,
+    Progress = case maps:find(on_progress, Opts) of
+                   {ok, P} ->
+                       T0 = erlang:monotonic_time(millisecond),
+                       Start = rw_scene:ms(Scene, Scene#scene.start),
+                       fun(T) ->
+                               Wall = max(1, erlang:monotonic_time(millisecond) - T0),
+                               P(#{gvt => T, end_ms => End, wall_ms => Wall, realtime_factor => (T - Start) / Wall})
+                       end;
+                   error -> fun(_) -> ok end
+               end,
+    %% the reference runs in this process: a signal's message is seen
+    %% between frames
+    OnFrame = fun({frame, T, _} = F) ->
+                      Sink(F),
+                      Progress(T),
+                      receive {rw_interrupt, Signal} -> throw({rw_interrupt, Signal, T})
+                      after 0 -> ok
+                      end
+              end,
+    rw_reference:run(Scene, maps:merge(#{on_frame => OnFrame},
+                                       maps:merge(checkpoint_sink(), maps:with([checkpoint_ms], Opts))));
+run_engine(timewarp, Scene, From, Opts) ->
+    TwOpts0 = maps:merge(maps:with([on_progress | ?TIMEWARP_KEYS], Opts), checkpoint_sink()),
+    TwOpts1 = case From of fresh -> TwOpts0; _ -> TwOpts0#{from => From} end,
+    %% no sink, no frames out of the engine (only their times)
+    TwOpts = case sink(Opts) of none -> TwOpts1; Sink -> TwOpts1#{on_frame => Sink} end,
+    rw_timewarp:run(Scene, TwOpts).
+
+failure({crashed, _, _} = Crash) -> Crash;
+failure({interrupted, _, _} = Interrupt) -> Interrupt;
+failure({raised, Class, Reason, Stack}) ->
+    lists:flatten(io_lib:format("the run stopped: ~p:~0P in ~0P", [Class, Reason, 12, Stack, 8]));
+failure(Message) when is_list(Message) -> Message;
+failure(Other) -> describe_failure(Other).
+
+describe_failure({schedulers, Message}) -> Message;
+describe_failure(Other) -> lists:flatten(io_lib:format("~0P", [Other, 20])).
+
+%% The engine's own counters, plus what every run reports (sim_ms: the
+%% simulated time this run computed, from its checkpoint when it resumed).
+summary(#scene{name = Name, substep = Dt, stride = Stride, spheres = Spheres} = Scene, Engine, From, Stats, WallUs) ->
     WallMs = WallUs / 1000.0,
-    SimMs = rw_scene:duration_ms(Scene),
-    Stats#{scene => Name, engine => Engine, bodies => length(Spheres), substep_ms => rw_scene:ms(Scene, Dt),
-           stride_ms => rw_scene:ms(Scene, Stride), sim_ms => SimMs, wall_ms => round(WallMs),
-           realtime_factor => SimMs / max(WallMs, 0.001)}.
+    StartMs = case From of fresh -> 0; {checkpoint, _, Ms, _} -> Ms end,
+    SimMs = rw_scene:duration_ms(Scene) - StartMs,
+    Resumed = case From of fresh -> #{}; _ -> #{resumed_from_ms => StartMs} end,
+    maps:merge(maps:without([status], Stats),
+               Resumed#{scene => Name, engine => Engine, bodies => length(Spheres),
+                        substep_ms => rw_scene:ms(Scene, Dt), stride_ms => rw_scene:ms(Scene, Stride),
+                        sim_ms => SimMs, wall_ms => round(WallMs), realtime_factor => SimMs / max(WallMs, 0.001)}).
 
 check_file(File) when is_list(File); is_binary(File) ->
     try unicode:characters_to_list(File) of
@@ -296,7 +389,7 @@ check_options(Opts) ->
 check_values([]) -> ok;
 check_values([{engine, E} | Rest]) when E =:= reference; E =:= timewarp -> check_values(Rest);
 check_values([{K, V} | Rest]) when (K =:= buckets orelse K =:= schedulers orelse K =:= watchdog_ms
-                                    orelse K =:= group_max),
+                                    orelse K =:= group_max orelse K =:= restart_period_ms orelse K =:= ring_size),
                                    is_integer(V), V > 0, V =< 1 bsl 20 -> check_values(Rest);
 check_values([{K, V} | Rest]) when (K =:= until orelse K =:= substep orelse K =:= stride orelse
                                     K =:= frame_ms), is_number(V), V > 0 -> check_values(Rest);
@@ -306,7 +399,10 @@ check_values([{integrator, I} | Rest]) ->
         false -> {error, lists:flatten(io_lib:format("bad value for option integrator: ~p (known: ~p)",
                                                      [I, rw_integrate:integrators()]))}
     end;
-check_values([{K, C} | Rest]) when (K =:= ccd orelse K =:= groups), is_boolean(C) -> check_values(Rest);
+check_values([{K, C} | Rest]) when (K =:= ccd orelse K =:= groups orelse K =:= resume), is_boolean(C) ->
+    check_values(Rest);
+check_values([{K, V} | Rest]) when (K =:= max_restarts orelse K =:= checkpoint_ms), is_integer(V), V >= 0,
+                                   V =< 1 bsl 30 -> check_values(Rest);
 check_values([{frames, F} | Rest]) when is_list(F); is_binary(F) -> check_values(Rest);
 check_values([{K, F} | Rest]) when (K =:= on_frame orelse K =:= on_progress), is_function(F, 1) ->
     check_values(Rest);

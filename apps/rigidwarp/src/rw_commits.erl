@@ -8,11 +8,13 @@
 %% back meanwhile).
 -module(rw_commits).
 -include("rigidwarp.hrl").
--export([commit/3, withdraw/3, complete/2, forget/2, select_at/2, delete_at/2]).
+-export([commit/3, withdraw/3, complete/2, forget/2, select_at/2, states_at/2, delete_at/2, keep_only/2]).
 -export_type([record/0]).
 
-%% A body's committed state at a sync point, keyed by time and idx.
--type record() :: {{non_neg_integer(), non_neg_integer()}, rw_reference:body_frame()}.
+%% A body's committed state at a sync point, keyed by time and idx: its
+%% frame record and its pre-response velocities (v, w).
+-type record() :: {{non_neg_integer(), non_neg_integer()}, rw_reference:body_frame(),
+                   {rw_vec:vec(), rw_vec:vec() | undefined}}.
 
 %% Commit the records of an entity's members at sync point T.
 -spec commit(#sim{}, non_neg_integer(), [record()]) -> ok.
@@ -49,10 +51,31 @@ forget(#sim{counts = Counts}, T) ->
 %% The records committed at sync point T, in idx order: one per body once
 %% GVT has passed T.
 -spec select_at(non_neg_integer(), ets:tid()) -> [rw_reference:body_frame()].
-select_at(T, Records) -> ets:select(Records, [{{{T, '_'}, '$1'}, [], ['$1']}]).
+select_at(T, Records) -> ets:select(Records, [{{{T, '_'}, '$1', '_'}, [], ['$1']}]).
+
+%% Every body's whole pre-response state at sync point T, in idx order
+%% (once GVT has passed T): what a run resumed from T starts with.
+-spec states_at(non_neg_integer(), ets:tid()) -> [#st{}].
+states_at(T, Records) ->
+    [#st{p = P, v = V, q = Q, w = W}
+     || {_, {_, P, _, Q, _}, {V, W}} <- ets:select(Records, [{{{T, '_'}, '_', '_'}, [], ['$_']}])].
 
 %% Forget the records of sync point T.
 -spec delete_at(non_neg_integer(), ets:tid()) -> ok.
 delete_at(T, Records) ->
-    _ = ets:select_delete(Records, [{{{T, '_'}, '_'}, [], [true]}]),
+    _ = ets:select_delete(Records, [{{{T, '_'}, '_', '_'}, [], [true]}]),
     ok.
+
+%% Forget the records of every time but Keep (ticks): after a fault, only
+%% the frames of the ring are known to be whole and committed.
+-spec keep_only(ets:tid(), [non_neg_integer()]) -> ok.
+keep_only(Records, Keep) -> keep_only(Records, ets:first(Records), maps:from_keys(Keep, true)).
+
+keep_only(_Records, '$end_of_table', _Keep) -> ok;
+keep_only(Records, {T, _}, Keep) ->
+    _ = case Keep of
+            #{T := _} -> ok;
+            #{} -> delete_at(T, Records)
+        end,
+    %% an atom sorts after every idx: the first key of the next time
+    keep_only(Records, ets:next(Records, {T, later}), Keep).

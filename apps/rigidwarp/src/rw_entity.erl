@@ -115,7 +115,7 @@
     spheres = {} :: tuple(),
     idxs = [] :: [non_neg_integer()],
     pos = #{} :: #{non_neg_integer() => pos_integer()},
-    start :: tuple() | undefined,               % the states at LVT 0, until written
+    start :: tuple() | undefined,               % the states at the start time, until written
     %% a group formed at S starts from its members' post-response
     %% velocities at S, computed by their old entities
     base = none :: none | {non_neg_integer(), tuple()},
@@ -139,7 +139,7 @@
     phase = ready :: phase(),
     island :: rw_island:island() | undefined,
     lvt = 0 :: non_neg_integer(),
-    gvt = -1 :: integer(),                      % -1 until the first frame
+    gvt = -1 :: integer(),                      % -1 until the first sync point
     timeline = rw_timeline:new() :: rw_timeline:timeline(),
     pend_ev = #{} :: #{cid() => true},
     pend_anti = #{} :: #{cid() => true},
@@ -173,7 +173,7 @@
 %% that it cost more than it saved.
 -define(WRITE_BUDGET, 1024).
 
-%% An entity for body Sphere of Scene, starting from St0 at LVT 0, whose
+%% An entity for body Sphere of Scene, starting from St0 at the calendar's start, whose
 %% messages reach it at Self.
 -spec new(addr(), #scene{}, rw_sync:calendar(), #sphere{}, #st{}) -> entity().
 new(Self, #scene{model = M, substep = Dt, stride = Stride, fixtures = Fixtures}, Cal, #sphere{idx = Idx, id = Id} = Sphere,
@@ -222,9 +222,11 @@ other(_Idx, {_, A, _, _}) -> A.
 %%% Dispatch by phase
 
 dispatch({reply, Reply}, #e{cont = Cont} = E) when Cont =/= none -> resume(Reply, Cont, E#e{cont = none});
-dispatch(start, #e{phase = ready, g = #g{start = St0} = G, conf = #conf{model = M}} = E) ->
-    %% the initial state is written like any other, at LVT 0
-    write_states(0, [rw_chain:pack([St], M) || St <- tuple_to_list(St0)], 0, [], E#e{lvt = 0, g = G#g{start = undefined}});
+dispatch(start, #e{phase = ready, g = #g{start = St0} = G, conf = #conf{model = M, cal = Cal}} = E) ->
+    %% the initial state is written like any other, at the start time
+    T0 = rw_sync:start(Cal),
+    write_states(T0, [rw_chain:pack([St], M) || St <- tuple_to_list(St0)], T0, [],
+                 E#e{lvt = T0, g = G#g{start = undefined}});
 dispatch({step, Gvt, Lvts}, #e{phase = step} = E) -> step(Gvt, Lvts, E);
 dispatch({bundle, S, _, _, _} = Msg, #e{phase = step, lvt = S, g = #g{stop_at = [S | _], moves = Moves}} = E) ->
     %% a new member arrives before this entity has seen GVT reach the
@@ -316,7 +318,7 @@ resume({deleted, Lost}, {undo, R, Then}, E) ->
 
 step(Gvt0, Lvts, E0) ->
     #e{lvt = Lvt, gvt = Gvt, conf = #conf{stride = Stride, end_t = End, dt = Dt}} = E1 = on_gvt(Gvt0, E0),
-    case regroup(min(max(Gvt, 0) + Stride, End), E1) of
+    case regroup(min(max(Gvt, rw_sync:start(E1#e.conf#conf.cal)) + Stride, End), E1) of
         {handover, Move, E} ->
             handover(Move, E);
         {Last, Capped, E} ->
@@ -525,8 +527,9 @@ wait(false, #e{lvt = Lvt, gvt = G, conf = #conf{stride = S, end_t = End, cal = C
 wake_at(At, #e{wake_at = Asked} = E) when is_integer(Asked), Asked =< At -> E;   % already asked for as early
 wake_at(At, E) -> emit({wake_at, At}, E#e{wake_at = At}).
 
-%% Commit every member's state at sync point T: its frame record, keyed by
-%% time and body.
+%% Commit every member's state at sync point T: its frame record and its
+%% pre-response velocities (with the frame's position and orientation, the
+%% whole state a run resumed from T starts with), keyed by time and body.
 commit(T, States, Posts, E) ->
     case uncommitted(T, E) of
         true -> commit_now(T, States, Posts, E);
@@ -540,9 +543,9 @@ uncommitted(T, #e{gvt = G, timeline = TL, conf = #conf{cal = Cal}}) ->
 commit_now(T, States, Posts, #e{g = #g{spheres = Spheres}, timeline = TL} = E) ->
     Records = [begin
                    #sphere{idx = Idx, id = Id} = element(K, Spheres),
-                   #st{p = P, q = Q} = element(K, States),
+                   #st{p = P, v = V0, q = Q, w = W0} = element(K, States),
                    {V, W, _U} = element(K, Posts),
-                   {{T, Idx}, {Id, P, V, Q, W}}
+                   {{T, Idx}, {Id, P, V, Q, W}, {V0, W0}}
                end || K <- lists:seq(1, tuple_size(Spheres))],
     emit({commit, T, Records}, E#e{timeline = rw_timeline:commit(T, TL)}).
 

@@ -17,23 +17,26 @@
 %%
 %% Messages it takes: {complete, T} (rw_commits), {wake_at, Pid, At},
 %% {regroup_ack, S, Pid}; it sends {gvt, G} to whom asked to be woken, and
-%% {rw_frame, Gvt, Frame} or {rw_frame_time, Gvt, Ms} and {rw_done, Gvt,
-%% EndMs} to its subscribers and owner.
+%% to its run (rw_run) {rw_frame, Gvt, Frame} or {rw_frame_time, Gvt, Ms}
+%% for every frame, {rw_checkpoint, Gvt, Checkpoint} every checkpoint_ms of
+%% wall time, and {rw_done, Gvt, EndMs}.
 -module(rw_gvt).
 -behaviour(gen_server).
 -include("rigidwarp.hrl").
--export([start_link/2, subscribe/3, gvt/1, wake_at/3, regroup_ack/3]).
+-export([start_link/2, send_frames/1, gvt/1, wake_at/3, regroup_ack/3]).
 -export([init/1, handle_call/3, handle_cast/2, handle_info/2]).
 -export_type([options/0]).
 
-%% owner: told {rw_done, ...}; subscribers: told of every frame (frames)
-%% or of its time only (times); ring_size: frames kept in the ring.
--type options() :: #{owner => pid(), subscribers => [{pid(), frames | times}], ring_size => pos_integer()}.
+%% run: told of every frame (the frame itself once send_frames/1 asks, else
+%% its time), of checkpoints and of the end; ring_size: frames kept in the
+%% ring; checkpoint_ms: wall time between checkpoints.
+-type options() :: #{run => pid(), frames => boolean(), ring_size => pos_integer(),
+                     checkpoint_ms => non_neg_integer()}.
 
 -record(s, {
     sim :: #sim{},
-    owner :: pid() | undefined,
-    subscribers = [] :: [{pid(), frames | times}],
+    run :: pid() | undefined,
+    frames = false :: boolean(),              % whole frames to the run, not their times
     gvt = -1 :: integer(),                   % last sync point passed
     complete = #{} :: #{non_neg_integer() => true},
     %% the entities to wake when GVT reaches each time, ascending (a few
@@ -41,7 +44,8 @@
     %% the GVT process a third of its time on Parallel 500)
     waiting = [] :: [{integer(), [pid()]}],
     ring_size :: pos_integer(),
-    frames = 0 :: non_neg_integer(),
+    checkpoint_ms :: non_neg_integer(),
+    checkpoint_due :: integer(),              % monotonic ms
     radii :: #{non_neg_integer() => float()},
     idxs :: [non_neg_integer()],                        % every body's idx, ascending
     groups :: rw_regroup:groups(),                      % the groups planned last
@@ -55,13 +59,12 @@
 -spec start_link(#sim{}, options()) -> {ok, pid()}.
 start_link(Sim, Opts) -> gen_server:start_link(?MODULE, {Sim, Opts}, []).
 
-%% Send {rw_frame, Gvt, Frame} (frames) or only each frame's time in ms,
-%% {rw_frame_time, Gvt, T} (times), to Pid for every frame from now on.
-%% Times suit a subscriber that counts frames or shows progress and would
-%% only drop the bodies' states (a copy of every body's record per frame,
-%% made by this process, which every entity may be waiting for).
--spec subscribe(pid(), pid(), frames | times) -> ok.
-subscribe(Gvt, Pid, What) when What =:= frames; What =:= times -> gen_server:call(Gvt, {subscribe, Pid, What}).
+%% From now on, send the run every frame, not only its time. Times suit a
+%% run that counts frames or shows progress and would only drop the bodies'
+%% states (a copy of every body's record per frame, made by this process,
+%% which every entity may be waiting for).
+-spec send_frames(pid()) -> ok.
+send_frames(Gvt) -> gen_server:cast(Gvt, send_frames).
 
 %% Send {gvt, G} to Pid once GVT G >= At (at once if it is already).
 -spec wake_at(pid(), pid(), integer()) -> ok.
@@ -91,18 +94,19 @@ init({#sim{scene = #scene{spheres = Spheres}, n = N, records = Records, ring = R
     _ = process_flag(min_heap_size, min(2048 * N, 1 bsl 21)),
     ok = rw_ring:init(Ring, Records, N),
     Idxs = lists:sort([I || #sphere{idx = I} <- Spheres]),
-    {ok, #s{sim = Sim, owner = maps:get(owner, Opts, undefined), subscribers = maps:get(subscribers, Opts, []),
-            ring_size = maps:get(ring_size, Opts, 1024), idxs = Idxs,
+    Every = maps:get(checkpoint_ms, Opts, 1000),
+    {ok, #s{sim = Sim, run = maps:get(run, Opts, undefined), frames = maps:get(frames, Opts, false),
+            ring_size = maps:get(ring_size, Opts, 1024), idxs = Idxs, checkpoint_ms = Every,
+            checkpoint_due = erlang:monotonic_time(millisecond) + Every,
             radii = maps:from_list([{I, R} || #sphere{idx = I, radius = R} <- Spheres]),
             groups = rw_regroup:new(Idxs, Max, Mode)}}.
 
 -spec handle_call(term(), gen_server:from(), #s{}) -> {reply, term(), #s{}}.
-handle_call({subscribe, Pid, What}, _From, #s{subscribers = Subs} = S) ->
-    {reply, ok, S#s{subscribers = [{Pid, What} | Subs]}};
 handle_call(gvt, _From, #s{gvt = G} = S) ->
     {reply, ms(G, S), S}.
 
 -spec handle_cast(term(), #s{}) -> {noreply, #s{}}.
+handle_cast(send_frames, S) -> {noreply, S#s{frames = true}};
 handle_cast(_Msg, S) -> {noreply, S}.
 
 -spec handle_info(term(), #s{}) -> {noreply, #s{}}.
@@ -151,7 +155,7 @@ advance(#s{gvt = G0} = S) ->
             S2 = lists:foldl(fun finish/2, S1#s{waiting = wake(G, S1#s.waiting), passed = []},
                              lists:reverse(Passed)),
             ok = case G of
-                     End -> notify(S#s.owner, {rw_done, self(), ms(End, S)});
+                     End -> notify(S#s.run, {rw_done, self(), ms(End, S)});
                      _ -> ok
                  end,
             S2;
@@ -195,21 +199,29 @@ finish(T, #s{sim = #sim{records = Records, ring = Ring, sync = Cal} = Sim} = S) 
         true ->
             %% frames leave the engine with their time in ms
             Ms = ms(T, S),
-            ok = rw_ring:write(Ring, Ms, T, S#s.frames, S#s.ring_size),
-            Subs = S#s.subscribers,
-            Frame = case lists:keymember(frames, 2, Subs) of
-                        true -> {frame, Ms, rw_commits:select_at(T, Records)};
-                        false -> none
-                    end,
-            _ = [case What of
-                     frames -> P ! {rw_frame, self(), Frame};
-                     times -> P ! {rw_frame_time, self(), Ms}
-                 end || {P, What} <- Subs],
-            S#s{frames = S#s.frames + 1};
+            ok = rw_ring:write(Ring, Ms, T, S#s.ring_size),
+            ok = case S#s.frames of
+                     true -> notify(S#s.run, {rw_frame, self(), {frame, Ms, rw_commits:select_at(T, Records)}});
+                     false -> notify(S#s.run, {rw_frame_time, self(), Ms})
+                 end,
+            checkpoint(T, Ms, S);
         false ->
             ok = rw_commits:delete_at(T, Records),
             S
     end.
+
+%% Every checkpoint_ms of wall time, a frame is also a checkpoint: the
+%% whole state of every body, from which the run restarts after a fault.
+checkpoint(T, Ms, #s{sim = #sim{records = Records, end_t = End}, checkpoint_due = Due} = S) when T < End ->
+    Now = erlang:monotonic_time(millisecond),
+    case Now >= Due of
+        true ->
+            ok = notify(S#s.run, {rw_checkpoint, self(), {checkpoint, T, Ms, rw_commits:states_at(T, Records)}}),
+            S#s{checkpoint_due = Now + S#s.checkpoint_ms};
+        false ->
+            S
+    end;
+checkpoint(_T, _Ms, S) -> S.
 
 %% At a regroup point X, plan the groups at X + period from the states
 %% committed at X and the pairs the entities said met often lately, and

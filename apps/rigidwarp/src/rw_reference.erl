@@ -6,7 +6,7 @@
 -module(rw_reference).
 -include("rigidwarp.hrl").
 -export([run/2, substep/3]).
--export_type([frame/0, body_frame/0, stats/0, options/0]).
+-export_type([frame/0, body_frame/0, checkpoint/0, stats/0, options/0]).
 
 %% A committed frame: each dynamic body's position and post-response
 %% velocities at time T, sorted by id.
@@ -14,20 +14,48 @@
                        Q :: rw_quat:quat() | undefined, W :: rw_vec:vec() | undefined}.
 %% T is in ms: an integer when whole (always, with a 1 ms tick).
 -type frame() :: {frame, T :: number(), [body_frame()]}.
+%% Everything the future of a run depends on at frame time Ms (Tick in the
+%% scene's ticks): every body's pre-response state, in scene order. A run
+%% started from it (rw_scene:from_checkpoint/2) writes, from the frame at Ms
+%% on, the frames of the run that never stopped.
+-type checkpoint() :: {checkpoint, Tick :: non_neg_integer(), Ms :: number(), [#st{}]}.
 -type stats() :: #{substeps := non_neg_integer(), body_substeps := non_neg_integer(),
                    pair_contacts := non_neg_integer(), fixture_contacts := non_neg_integer(),
                    frames := non_neg_integer(), sim_ms := number()}.
--type options() :: #{on_frame => fun((frame()) -> any())}.
+%% on_checkpoint: called after the frame of the same time, at frame times
+%% at least checkpoint_ms (default 1000) of wall time apart.
+-type options() :: #{on_frame => fun((frame()) -> any()), on_checkpoint => fun((checkpoint()) -> any()),
+                     checkpoint_ms => non_neg_integer()}.
 
 -spec run(#scene{}, options()) -> {ok, stats()}.
-run(#scene{duration = End, substep = Dt, frame = Frame, spheres = Spheres, initial = Initial} = Scene, Opts) ->
+run(#scene{duration = End, substep = Dt, frame = Frame, spheres = Spheres, initial = Initial, start = T0} = Scene,
+    Opts) ->
     OnFrame0 = maps:get(on_frame, Opts, fun(_) -> ok end),
-    %% frames leave the engine with their time in ms
-    OnFrame = fun({frame, T, Bodies}) -> OnFrame0({frame, rw_scene:ms(Scene, T), Bodies}) end,
+    OnCheckpoint = maps:get(on_checkpoint, Opts, none),
+    Every = maps:get(checkpoint_ms, Opts, 1000),
+    %% frames leave the engine with their time in ms; the accumulator is
+    %% when the next checkpoint is due (monotonic ms)
+    OnFrame = fun({frame, T, Bodies}, States, Due) ->
+                      Ms = rw_scene:ms(Scene, T),
+                      OnFrame0({frame, Ms, Bodies}),
+                      checkpoint(OnCheckpoint, Every, Due, {checkpoint, T, Ms, tuple_to_list(States)})
+              end,
     Bodies = list_to_tuple(Spheres),
     Stats0 = #{substeps => 0, body_substeps => 0, pair_contacts => 0, fixture_contacts => 0,
-               frames => 0, sim_ms => rw_scene:duration_ms(Scene)},
-    loop(0, End, Dt, Frame, own_grid(Scene), Bodies, list_to_tuple(Initial), OnFrame, Stats0).
+               frames => 0, sim_ms => rw_scene:duration_ms(Scene) - rw_scene:ms(Scene, T0)},
+    {ok, #{substeps := Last} = Stats} = loop(T0, End, Dt, Frame, own_grid(Scene), Bodies, list_to_tuple(Initial),
+                                             {OnFrame, erlang:monotonic_time(millisecond) + Every}, Stats0),
+    {ok, Stats#{substeps := Last - T0 div Dt}}.
+
+checkpoint(none, _Every, Due, _Checkpoint) -> Due;
+checkpoint(Fun, Every, Due, Checkpoint) ->
+    Now = erlang:monotonic_time(millisecond),
+    case Now >= Due of
+        true ->
+            _ = Fun(Checkpoint),
+            Now + Every;
+        false -> Due
+    end.
 
 %% The scene's cell size is the TVHT's. The reference rebuilds its grid
 %% every substep and checks every pair sharing a cell, for which cells of
@@ -37,19 +65,19 @@ own_grid(#scene{spheres = []} = Scene) -> Scene;
 own_grid(#scene{spheres = Spheres} = Scene) ->
     Scene#scene{cell_size = 2.0 * lists:max([R || #sphere{radius = R} <- Spheres])}.
 
-loop(T, End, Dt, FrameT, Scene, Bodies, States, OnFrame, Stats) ->
+loop(T, End, Dt, FrameT, Scene, Bodies, States, {OnFrame, Acc} = Out, Stats) ->
     Frame = T rem FrameT =:= 0 orelse T =:= End,
     {Next, Post, Counts} = substep(Scene, Bodies, States),
     Stats1 = maps:map(fun(K, V) -> V + maps:get(K, Counts, 0) end, Stats),
-    Stats2 = case Frame of
-                 true ->
-                     OnFrame({frame, T, frame_bodies(Bodies, States, Post)}),
-                     maps:update_with(frames, fun(F) -> F + 1 end, Stats1);
-                 false -> Stats1
-             end,
+    {Stats2, Out1} = case Frame of
+                         true ->
+                             {maps:update_with(frames, fun(F) -> F + 1 end, Stats1),
+                              {OnFrame, OnFrame({frame, T, frame_bodies(Bodies, States, Post)}, States, Acc)}};
+                         false -> {Stats1, Out}
+                     end,
     case T >= End of
         true -> {ok, Stats2#{substeps := T div Dt}};
-        false -> loop(T + Dt, End, Dt, FrameT, Scene, Bodies, Next, OnFrame, Stats2)
+        false -> loop(T + Dt, End, Dt, FrameT, Scene, Bodies, Next, Out1, Stats2)
     end.
 
 frame_bodies(Bodies, States, Post) ->

@@ -8,22 +8,33 @@
 %%
 %% Keys: {t, Ms} => Tick for each frame held (its time in ms, an integer
 %% when whole, rw_scene:whole_ms/1, and in ticks); {slot, K} => Ms for the
-%% K-th frame modulo the ring's size; latest => Ms; source => {Records, N},
-%% the records table and the number of bodies in a frame.
+%% K-th frame modulo the ring's size; count => frames written; latest =>
+%% Ms; source => {Records, N}, the records table and the number of bodies
+%% in a frame. The ring and the records outlive the simulation's processes
+%% (rw_run owns them), so a simulation restarted from a checkpoint writes
+%% frames that are there already: they are the same frames, and stay.
 -module(rw_ring).
--export([init/3, write/5, latest/1, frame_at/2, frames_after/3]).
+-export([init/3, write/4, latest/1, frame_at/2, frames_after/3, ticks/1]).
 
 %% A ring over the records table Records of a simulation of N bodies.
 -spec init(ets:tid(), ets:tid(), pos_integer()) -> ok.
 init(Ring, Records, N) ->
     true = ets:insert(Ring, {source, Records, N}),
+    _ = ets:insert_new(Ring, {count, 0}),
     ok.
 
-%% Frame time Tick (Ms in ms), the K-th frame (from 0), enters a ring of
-%% Size frames; the oldest leaves it once the ring is full, and its records
-%% go.
--spec write(ets:tid(), number(), non_neg_integer(), non_neg_integer(), pos_integer()) -> ok.
-write(Ring, Ms, Tick, K, Size) ->
+%% Frame time Tick (Ms in ms) enters a ring of Size frames, unless it is
+%% there already; the oldest leaves it once the ring is full, and its
+%% records go.
+-spec write(ets:tid(), number(), non_neg_integer(), pos_integer()) -> ok.
+write(Ring, Ms, Tick, Size) ->
+    case ets:member(Ring, {t, Ms}) of
+        true -> ok;
+        false -> add(Ring, Ms, Tick, Size)
+    end.
+
+add(Ring, Ms, Tick, Size) ->
+    [{count, K}] = ets:lookup(Ring, count),
     _ = case K >= Size of
             true ->
                 [{_, OldMs}] = ets:lookup(Ring, {slot, K rem Size}),
@@ -33,8 +44,16 @@ write(Ring, Ms, Tick, K, Size) ->
                 rw_commits:delete_at(OldTick, Records);
             false -> ok
         end,
-    true = ets:insert(Ring, [{{t, Ms}, Tick}, {{slot, K rem Size}, Ms}, {latest, Ms}]),
+    Latest = case ets:lookup(Ring, latest) of
+                 [{latest, L}] when L > Ms -> L;
+                 _ -> Ms
+             end,
+    true = ets:insert(Ring, [{{t, Ms}, Tick}, {{slot, K rem Size}, Ms}, {count, K + 1}, {latest, Latest}]),
     ok.
+
+%% The frame times the ring holds, in ticks.
+-spec ticks(ets:tid()) -> [non_neg_integer()].
+ticks(Ring) -> ets:select(Ring, [{{{t, '_'}, '$1'}, [], ['$1']}]).
 
 -spec latest(ets:tid()) -> rw_reference:frame() | none.
 latest(Ring) ->

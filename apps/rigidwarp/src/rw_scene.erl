@@ -4,7 +4,8 @@
 -module(rw_scene).
 -include("rigidwarp.hrl").
 -include_lib("kernel/include/file.hrl").
--export([load/1, load/2, from_map/2, from_binary/2, format_error/1, max_abs/0, ms/2, us_to_ms/1, whole_ms/1, duration_ms/1]).
+-export([load/1, load/2, from_map/2, from_binary/2, format_error/1, max_abs/0, ms/2, us_to_ms/1, whole_ms/1, duration_ms/1,
+         fingerprint/1, from_checkpoint/2]).
 -export_type([error/0, overrides/0]).
 
 -type path() :: [binary() | non_neg_integer()].
@@ -221,6 +222,21 @@ ms(_Scene, T) when T < 0 -> T;
 ms(#scene{tick_us = U}, T) -> us_to_ms(T * U).
 
 %% How long the scene runs, in ms.
+%% What identifies a run's frames: everything the frames depend on (bodies,
+%% fixtures, model, times), not where the scene was read from nor its name
+%% nor the bucket count. A checkpoint is only resumed by a run with the same
+%% fingerprint.
+-spec fingerprint(#scene{}) -> binary().
+fingerprint(#scene{} = Scene) ->
+    erlang:md5(term_to_binary(Scene#scene{name = <<>>, file = undefined, buckets = undefined},
+                              [{minor_version, 2}])).
+
+%% The scene as it stands at a checkpoint: the same run, from there on.
+-spec from_checkpoint(#scene{}, rw_reference:checkpoint()) -> #scene{}.
+from_checkpoint(#scene{spheres = Spheres} = Scene, {checkpoint, Tick, _Ms, States})
+  when length(States) =:= length(Spheres) ->
+    Scene#scene{start = Tick, initial = States}.
+
 -spec duration_ms(#scene{}) -> number().
 duration_ms(#scene{duration = D} = Scene) -> ms(Scene, D).
 

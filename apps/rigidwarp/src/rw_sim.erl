@@ -5,7 +5,12 @@
 -module(rw_sim).
 -include("rigidwarp.hrl").
 -export([new/5, for_bodies/1, lvt_slot/1]).
--export_type([options/0]).
+-export_type([options/0, tables/0]).
+
+%% The simulation's working tables (rw_sim_tables) and the run's records
+%% and ring (rw_run).
+-type tables() :: #{records := ets:tid(), ring := ets:tid(), counts := ets:tid(), owners := ets:tid(),
+                    procs := ets:tid(), met := ets:tid()}.
 
 -type options() :: #{groups => boolean(), group_max => pos_integer(),
                      %% (tests) regroup points this many strides apart, groups of
@@ -19,8 +24,8 @@
 %% scheduler busy.
 -define(DEFAULT_GROUP_MAX, 64).
 
--spec new(#scene{}, rw_sim_tables:tables(), tuple(), rw_stats:counters(), options()) -> #sim{}.
-new(#scene{spheres = Spheres, duration = End, frame = Frame, stride = Stride} = Scene,
+-spec new(#scene{}, tables(), tuple(), rw_stats:counters(), options()) -> #sim{}.
+new(#scene{spheres = Spheres, duration = End, frame = Frame, stride = Stride, start = Start} = Scene,
     #{records := Records, counts := Counts, ring := Ring, owners := Owners, procs := Procs, met := Met},
     Buckets, Stats, Opts) ->
     Period = case {maps:get(groups, Opts, true), maps:find(regroup_every, Opts)} of
@@ -28,7 +33,7 @@ new(#scene{spheres = Spheres, duration = End, frame = Frame, stride = Stride} = 
                  {true, {ok, Every}} -> Every * Stride;
                  {true, error} -> period(Scene)
              end,
-    #sim{scene = Scene, n = length(Spheres), end_t = End, sync = rw_sync:new(Frame, Stride, End, Period),
+    #sim{scene = Scene, n = length(Spheres), end_t = End, sync = rw_sync:new(Frame, Stride, End, Period, Start),
          buckets = Buckets, records = Records, counts = Counts, ring = Ring, owners = Owners, procs = Procs,
          met = Met, stats = Stats, profile = maps:get(profile, Opts, false),
          lvts = atomics:new(lvt_slot(lists:max([0 | [I || #sphere{idx = I} <- Spheres]])), [{signed, false}]),

@@ -1,12 +1,13 @@
-%% Owns the ETS tables of one simulation and does nothing else, so that the
-%% tables outlive a crash of the GVT process or of any body.
+%% Owns the working ETS tables of one simulation and does nothing else:
+%% the counts of commits, the processes, who steps which body and the pairs
+%% that met. (The committed records and the frame ring belong to the run,
+%% rw_run, and outlive every restart.)
 -module(rw_sim_tables).
 -behaviour(gen_server).
 -export([start_link/0, tables/1]).
 -export([init/1, handle_call/3, handle_cast/2]).
 
--type tables() :: #{records := ets:tid(), counts := ets:tid(), ring := ets:tid(), owners := ets:tid(),
-                    procs := ets:tid(), met := ets:tid()}.
+-type tables() :: #{counts := ets:tid(), owners := ets:tid(), procs := ets:tid(), met := ets:tid()}.
 -export_type([tables/0]).
 
 -spec start_link() -> {ok, pid()}.
@@ -17,9 +18,7 @@ tables(Pid) -> gen_server:call(Pid, tables).
 
 -spec init([]) -> {ok, tables()}.
 init([]) ->
-    {ok, #{records => ets:new(rw_records, [ordered_set, public, {write_concurrency, true}]),
-           counts => ets:new(rw_counts, [set, public, {write_concurrency, true}]),
-           ring => ets:new(rw_frames, [set, public, {read_concurrency, true}]),
+    {ok, #{counts => ets:new(rw_counts, [set, public, {write_concurrency, true}]),
            procs => ets:new(rw_procs, [set, public, {read_concurrency, true}]),
            owners => ets:new(rw_owners, [set, public, {read_concurrency, true}, {write_concurrency, true}]),
            met => ets:new(rw_met, [set, public, {write_concurrency, true}])}}.

@@ -1,4 +1,4 @@
-%% Holds the running simulations, one rw_sim_sup each.
+%% Holds the running simulations, one rw_run each.
 -module(rw_sims_sup).
 -behaviour(supervisor).
 -export([start_link/0, init/1]).
@@ -9,5 +9,5 @@ start_link() -> supervisor:start_link({local, ?MODULE}, ?MODULE, []).
 -spec init([]) -> {ok, {supervisor:sup_flags(), [supervisor:child_spec()]}}.
 init([]) ->
     {ok, {#{strategy => simple_one_for_one, intensity => 10, period => 10},
-          [#{id => sim, start => {rw_sim_sup, start_link, []}, restart => temporary,
-             type => supervisor, shutdown => infinity}]}}.
+          [#{id => run, start => {rw_run, start_link, []}, restart => temporary,
+             type => worker, shutdown => 10000}]}}.

@@ -5,19 +5,30 @@
 %% advances from one sync point to the next once every body has committed
 %% it; a body that waits for GVT asks to be woken at a sync point.
 -module(rw_sync).
--export([new/4, is_sync/2, is_frame/2, after_gvt/2, last_before/2, end_t/1, period/1]).
+-export([new/4, new/5, start/1, is_sync/2, is_frame/2, after_gvt/2, last_before/2, end_t/1, period/1]).
 -export_type([calendar/0]).
 
 -record(cal, {
     frame :: pos_integer(),          % ticks
     stride :: pos_integer(),
     end_t :: non_neg_integer(),
-    period :: non_neg_integer()      % regroup points; 0: no contact groups
+    period :: non_neg_integer(),     % regroup points; 0: no contact groups
+    start = 0 :: non_neg_integer()   % the first sync point: the time the run starts from
 }).
 -opaque calendar() :: #cal{}.
 
 -spec new(pos_integer(), pos_integer(), non_neg_integer(), non_neg_integer()) -> calendar().
-new(Frame, Stride, End, Period) -> #cal{frame = Frame, stride = Stride, end_t = End, period = Period}.
+new(Frame, Stride, End, Period) -> new(Frame, Stride, End, Period, 0).
+
+%% A calendar for a run that starts at Start, a frame time (a run resumed
+%% from a checkpoint): sync points and frames fall where they fall in the
+%% run from 0, so that the frames are the same.
+-spec new(pos_integer(), pos_integer(), non_neg_integer(), non_neg_integer(), non_neg_integer()) -> calendar().
+new(Frame, Stride, End, Period, Start) ->
+    #cal{frame = Frame, stride = Stride, end_t = End, period = Period, start = Start}.
+
+-spec start(calendar()) -> non_neg_integer().
+start(#cal{start = Start}) -> Start.
 
 -spec end_t(calendar()) -> non_neg_integer().
 end_t(#cal{end_t = End}) -> End.
@@ -36,10 +47,10 @@ is_sync(T, #cal{frame = F, stride = S, end_t = End, period = P}) ->
 -spec is_frame(non_neg_integer(), calendar()) -> boolean().
 is_frame(T, #cal{frame = F, end_t = End}) -> T rem F =:= 0 orelse T =:= End.
 
-%% The first sync point after G (G < 0: before the first frame, 0). GVT
+%% The first sync point after G (G before the start: the start). GVT
 %% cannot pass it before every body has reached it.
 -spec after_gvt(integer(), calendar()) -> non_neg_integer().
-after_gvt(G, _Cal) when G < 0 -> 0;
+after_gvt(G, #cal{start = Start}) when G < Start -> Start;
 after_gvt(G, #cal{frame = F, stride = S, period = P, end_t = End}) ->
     Regroup = case P of 0 -> End; _ -> (G div P + 1) * P end,
     lists:min([(G div F + 1) * F, (G div S + 1) * S, Regroup, End]).

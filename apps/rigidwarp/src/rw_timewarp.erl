@@ -1,77 +1,61 @@
-%% Runs a scene on the Time Warp engine: starts one simulation tree under
-%% rw_sims_sup, starts a body per sphere, and collects frames and counters.
+%% Runs a scene on the Time Warp engine: a run (rw_run) under rw_sims_sup,
+%% which starts the simulation's tree and restarts it after a fault, and
+%% the caller's side of it: the frames, checkpoints and counters.
 -module(rw_timewarp).
 -include("rigidwarp.hrl").
--export([start/2, run/2, stop/1, stats/1, progress/2, default_buckets/0, end_ms/1]).
+-export([start/2, run/2, stop/1, stats/1, end_ms/1]).
 -export_type([handle/0, options/0]).
 
--type handle() :: #{sup := pid(), gvt := pid(), ring := ets:tid(), sim := #sim{}, started := integer()}.
--type options() :: #{buckets => pos_integer(), owner => pid(),
-                     %% the owner hears of every frame, or of its time only
-                     subscribe => false | frames | times,
+%% run: the run's process; ring: its frame ring (rw_ring), read without
+%% asking it; scene: the scene (for the viewer).
+-type handle() :: #{run := pid(), ring := ets:tid(), scene := #scene{}}.
+-type options() :: #{buckets => pos_integer(), schedulers => pos_integer(),
+                     %% the owner hears {rw_done, Run, EndMs} and {rw_crashed, Run, Who,
+                     %% Reason}, and of every frame or its time if it subscribes
+                     owner => pid(), subscribe => none | frames | times,
                      groups => boolean(), group_max => pos_integer(),
                      %% (tests) regroup points this many strides apart, groups of
                      %% all bodies near each other however they move
                      regroup_every => pos_integer(), grouping => persistent | eager,
                      watchdog_ms => pos_integer(), ring_size => pos_integer(), profile => boolean(),
                      delay => {Seed :: integer(), MaxMs :: non_neg_integer()},
+                     max_restarts => non_neg_integer(), restart_period_ms => pos_integer(),
+                     checkpoint_ms => non_neg_integer(), from => rw_reference:checkpoint(),
                      on_frame => fun((rw_reference:frame()) -> any()),
+                     on_checkpoint => fun((rw_reference:checkpoint()) -> any()),
                      on_progress => fun((map()) -> any())}.
 
--spec default_buckets() -> pos_integer().
-default_buckets() -> 64.
+-define(RUN_KEYS, [buckets, schedulers, groups, group_max, regroup_every, grouping, watchdog_ms, ring_size, profile,
+                   delay, max_restarts, restart_period_ms, checkpoint_ms, from]).
 
 %% Start a simulation; it runs on its own until the scene's end.
 -spec start(#scene{}, options()) -> {ok, handle()} | {error, term()}.
 start(Scene, Opts) ->
     {ok, _} = application:ensure_all_started(rigidwarp),
-    NBuckets = case Scene#scene.buckets of
-                   undefined -> maps:get(buckets, Opts, default_buckets());
-                   B -> maps:get(buckets, Opts, B)
-               end,
-    Subscribers = case maps:get(subscribe, Opts, false) of
-                      false -> [];
-                      What -> [{maps:get(owner, Opts, self()), What}]
-                  end,
-    case rw_sim_sup:start(Scene, NBuckets, Opts#{subscribers => Subscribers}) of
-        {ok, Sup, #sim{gvt = Gvt, ring = Ring} = Sim} ->
-            {ok, #{sup => Sup, gvt => Gvt, ring => Ring, sim => Sim, started => erlang:monotonic_time(millisecond)}};
-        {error, _} = Error ->
-            Error
+    Owner = maps:get(owner, Opts, self()),
+    Sub = {Owner, maps:get(subscribe, Opts, none), maps:is_key(on_checkpoint, Opts)},
+    case rw_run:start(Scene, (maps:with(?RUN_KEYS, Opts))#{subscribers => [Sub]}) of
+        {ok, Run} -> {ok, #{run => Run, ring => rw_run:ring(Run), scene => Scene}};
+        {error, _} = Error -> Error
     end.
 
 %% The end time in ms.
--spec end_ms(#sim{}) -> number().
-end_ms(#sim{end_t = End, scene = Scene}) -> rw_scene:ms(Scene, End).
+-spec end_ms(handle()) -> number().
+end_ms(#{scene := Scene}) -> rw_scene:duration_ms(Scene).
 
 -spec stop(handle()) -> ok.
-stop(#{sup := Sup}) ->
-    _ = supervisor:terminate_child(rw_sims_sup, Sup),
-    ok.
+stop(#{run := Run}) -> rw_run:stop(Run).
 
--spec stats(handle()) -> #{atom() => number()}.
-stats(#{sim := #sim{stats = Ref, n = N, end_t = End, scene = #scene{substep = Dt}, profile = Profile}}) ->
-    Raw = rw_stats:read(Ref, Profile),
-    Committed = N * (End div Dt),
-    Computed = maps:get(computed_substeps, Raw),
-    Raw#{rollbacks => maps:get(primary_rollbacks, Raw) + maps:get(secondary_rollbacks, Raw),
-         committed_substeps => Committed,
-         efficiency => case Computed of 0 -> 1.0; _ -> Committed / Computed end}.
-
-%% How far a running simulation is: GVT, how far the fastest body is ahead
-%% of it, realtime factor so far and the counters (times in ms, as rw_gvt:gvt/1
-%% gives GVT).
--spec progress(handle(), number()) -> map().
-progress(#{sim := #sim{lvts = Lvts, end_t = End, scene = Scene}, started := T0} = H, Gvt) ->
-    #{size := Size} = atomics:info(Lvts),
-    Lead = lists:max([atomics:get(Lvts, I) || I <- lists:seq(1, Size, 8)]),
-    Wall = max(1, erlang:monotonic_time(millisecond) - T0),
-    (stats(H))#{gvt => Gvt, end_ms => rw_scene:ms(Scene, End),
-                max_lvt => rw_scene:ms(Scene, Lead), wall_ms => Wall, realtime_factor => max(Gvt, 0) / Wall}.
+%% The counters, GVT and status of a run (rw_run:stats/1).
+-spec stats(handle()) -> map().
+stats(#{run := Run}) -> rw_run:stats(Run).
 
 %% Run to the end, calling on_frame for every committed frame in order
 %% (without on_frame, the frames stay in the engine: only their times come
-%% here, for on_progress and the count).
+%% here, for on_progress and the count) and on_checkpoint for checkpoints.
+%% {rw_interrupt, Signal} sent to the caller stops the run:
+%% {error, {interrupted, Signal, LastFrameMs}}. The run is stopped however
+%% this returns, a callback's exception included.
 -spec run(#scene{}, options()) -> {ok, map()} | {error, term()}.
 run(Scene, Opts) ->
     What = case maps:is_key(on_frame, Opts) of true -> frames; false -> times end,
@@ -79,46 +63,55 @@ run(Scene, Opts) ->
     %% only the latest frame's records are kept, not the last 1024 frames'
     %% (deleting those at the end cost Parallel 500 40 ms)
     case start(Scene, maps:merge(#{ring_size => 1}, Opts#{owner => self(), subscribe => What})) of
-        {ok, #{sup := Sup, gvt := Gvt} = H} ->
-            OnFrame = maps:get(on_frame, Opts, fun(_) -> ok end),
-            OnTime = case maps:find(on_progress, Opts) of
-                         {ok, P} -> fun(T) -> P(progress(H, T)) end;
-                         error -> fun(_) -> ok end
-                     end,
-            MRef = erlang:monitor(process, Sup),
-            Result = try collect(Gvt, MRef, OnFrame, OnTime, 0)
-                     after
-                         erlang:demonitor(MRef, [flush])
-                     end,
-            Stats = stats(H),
-            stop(H),
-            flush(Gvt),
-            case Result of
-                {ok, Frames} -> {ok, Stats#{frames => Frames}};
+        {ok, #{run := Run} = H} ->
+            Calls = #{frame => maps:get(on_frame, Opts, fun(_) -> ok end),
+                      checkpoint => maps:get(on_checkpoint, Opts, fun(_) -> ok end),
+                      time => case maps:find(on_progress, Opts) of
+                                  {ok, P} -> fun(T) -> P(progress(T, stats(H))) end;
+                                  error -> fun(_) -> ok end
+                              end},
+            MRef = erlang:monitor(process, Run),
+            try collect(Run, MRef, Calls, 0, -1) of
+                {ok, Frames} -> {ok, (stats(H))#{frames => Frames}};
                 Error -> Error
+            after
+                erlang:demonitor(MRef, [flush]),
+                stop(H),
+                flush(Run)
             end;
         Error ->
             Error
     end.
 
-collect(Gvt, MRef, OnFrame, OnTime, N) ->
+%% Progress as of the frame at T ms just delivered (the simulation may be
+%% further on already).
+progress(T, #{start_ms := Start, wall_ms := Wall} = Stats) ->
+    Stats#{gvt => T, realtime_factor => max(0, T - Start) / Wall}.
+
+collect(Run, MRef, #{frame := OnFrame, time := OnTime, checkpoint := OnCheckpoint} = Calls, N, Last) ->
     receive
-        {rw_frame, Gvt, {frame, T, _} = Frame} ->
+        {rw_frame, Run, {frame, T, _} = Frame} ->
             OnFrame(Frame),
             OnTime(T),
-            collect(Gvt, MRef, OnFrame, OnTime, N + 1);
-        {rw_frame_time, Gvt, T} ->
+            collect(Run, MRef, Calls, N + 1, T);
+        {rw_frame_time, Run, T} ->
             OnTime(T),
-            collect(Gvt, MRef, OnFrame, OnTime, N + 1);
-        {rw_done, Gvt, _End} -> {ok, N};
-        {rw_stalled, Gvt, G, Report} -> {error, {stalled, G, Report}};
-        {'DOWN', MRef, process, _, Reason} -> {error, {crashed, Reason}}
+            collect(Run, MRef, Calls, N + 1, T);
+        {rw_checkpoint, Run, Checkpoint} ->
+            OnCheckpoint(Checkpoint),
+            collect(Run, MRef, Calls, N, Last);
+        {rw_done, Run, _End} -> {ok, N};
+        {rw_crashed, Run, Who, Reason} -> {error, {crashed, Who, Reason}};
+        {rw_interrupt, Signal} -> {error, {interrupted, Signal, Last}};
+        {'DOWN', MRef, process, _, Reason} -> {error, {crashed, run, Reason}}
     end.
 
-flush(Gvt) ->
+flush(Run) ->
     receive
-        {rw_frame, Gvt, _} -> flush(Gvt);
-        {rw_frame_time, Gvt, _} -> flush(Gvt);
-        {rw_stalled, Gvt, _, _} -> flush(Gvt)
+        {rw_frame, Run, _} -> flush(Run);
+        {rw_frame_time, Run, _} -> flush(Run);
+        {rw_checkpoint, Run, _} -> flush(Run);
+        {rw_done, Run, _} -> flush(Run);
+        {rw_crashed, Run, _, _} -> flush(Run)
     after 0 -> ok
     end.

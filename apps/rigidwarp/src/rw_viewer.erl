@@ -105,7 +105,7 @@ fixture(#fixture{id = Id, shape = {box, C, H, Kind}}) ->
 
 vec({X, Y, Z}) -> [X, Y, Z].
 
-scene({live, #{sim := #sim{scene = S}}}) -> S;
+scene({live, #{scene := S}}) -> S;
 scene({playback, S, _}) -> S.
 
 %% Frames after T (ms), oldest first, as the frames file encodes them.
@@ -122,8 +122,8 @@ frames_after({live, #{ring := Ring}}, T, Max) ->
 status({playback, Scene, Frames}) ->
     Last = case Frames of [] -> -1; _ -> element(2, lists:last(Frames)) end,
     #{gvt => Last, end_ms => min(rw_scene:duration_ms(Scene), max(Last, 0)), frames => length(Frames)};
-status({live, #{gvt := Gvt} = Sim}) ->
-    case alive(fun() -> rw_timewarp:progress(Sim, rw_gvt:gvt(Gvt)) end) of
+status({live, Sim}) ->
+    case alive(fun() -> rw_timewarp:stats(Sim) end) of
         stopped -> #{error => <<"the simulation has been stopped">>};
         Stats -> Stats
     end.

@@ -1,5 +1,6 @@
 %% The watchdog of one simulation: if GVT does not advance for a while
-%% before the end, it logs, and tells the simulation's owner, a diagnosis
+%% before the end, it tells the simulation's run (rw_run, which logs it and
+%% restarts the simulation from its latest checkpoint) a diagnosis
 %% naming every body's phase, LVT and awaited acknowledgements, the bodies
 %% holding GVT back first ({rw_stalled, GvtPid, GvtMs, Report}); then it
 %% stops watching. It reads GVT where the entities do (#sim.gvt_now) and
@@ -42,7 +43,6 @@ handle_info(look, #w{sim = #sim{gvt_now = Now, end_t = End} = Sim, gvt = Last, s
                 true ->
                     Report = diagnose(Sim),
                     GvtMs = rw_scene:ms(Sim#sim.scene, Last),
-                    logger:error("rigidwarp: GVT stuck at ~p ms for ~b ms~n~ts", [GvtMs, Ms, Report]),
                     _ = [Pid ! {rw_stalled, Sim#sim.gvt, GvtMs, Report} || Pid <- [W#w.owner], is_pid(Pid)],
                     {noreply, W};
                 false ->

@@ -390,7 +390,7 @@ effect(I, {commit, T, Rows}, #m{records = R, counts = C, n = N, gp = #gvtp{g = G
             false -> fail(M0, {commit_at_or_before_gvt, I, T, G})
         end,
     Count = maps:get(T, C, 0) + length(Rows),
-    M1 = M#m{records = lists:foldl(fun({Key, F}, Acc) -> Acc#{Key => F} end, R, Rows), counts = C#{T => Count}},
+    M1 = M#m{records = lists:foldl(fun({Key, F, _Pre}, Acc) -> Acc#{Key => F} end, R, Rows), counts = C#{T => Count}},
     case Count of
         N -> enqueue(I, gvt, {complete, T}, M1);
         _ -> M1

@@ -180,11 +180,11 @@ run(Args, {File, Opts, Quiet}) ->
     Result = try
                  rigidwarp:run_scene(Scene, maps:merge(Opts, Progress))
              catch
-                 Class:Reason:Stack ->
+                 Class:Raised:Stack ->
                      %% a run that a signal stopped ends as stopped, whatever
                      %% the engine's processes did on the way down
                      case rw_cli_signals:received() of
-                         none -> erlang:raise(Class, Reason, Stack);
+                         none -> erlang:raise(Class, Raised, Stack);
                          Sig -> {error, {interrupted, Sig, undefined}}
                      end
              after
@@ -197,8 +197,8 @@ run(Args, {File, Opts, Quiet}) ->
         {error, {interrupted, Signal, LastMs}} ->
             io:format(standard_error, "~ts~n", [interrupted(Args, Frames, LastMs)]),
             rw_cli_signals:exit_code(Signal);
-        {error, Msg2} ->
-            io:format(standard_error, "rigidwarp: ~ts~n", [Msg2]),
+        {error, Reason} ->
+            io:format(standard_error, "rigidwarp: ~ts~n", [rigidwarp:format_error(Reason)]),
             1
     end.
 

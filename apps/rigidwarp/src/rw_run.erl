@@ -1,0 +1,317 @@
+%% One Time Warp simulation from its start to its end, through faults.
+%%
+%% It owns what must outlive the simulation's processes: the committed
+%% records and the frame ring (frames stay readable whatever dies), the
+%% latest checkpoint (a committed frame with every body's whole state,
+%% rw_reference:checkpoint()), the counters and the subscribers. It starts
+%% the simulation's tree (rw_sim_sup) and watches every process in it. When
+%% one dies, or GVT stalls, it stops the tree and starts another from the
+%% latest checkpoint: a committed frame is a consistent cut that no
+%% rollback can reach, so the frames from there on are those of the run
+%% that never stopped; the frames delivered already are not delivered
+%% again. Past the restart budget (max_restarts within restart_period_ms)
+%% the run has crashed: it says so at once, and its frames stay readable
+%% until it is stopped.
+%%
+%% Subscribers hear, with Run = this process: {rw_frame, Run, Frame} or
+%% {rw_frame_time, Run, Ms} for every frame, in order and once (frames or
+%% times); {rw_checkpoint, Run, Checkpoint} if they asked; {rw_done, Run,
+%% EndMs}; {rw_crashed, Run, Who, Reason}. A subscriber of none hears only
+%% of the end and of a crash.
+-module(rw_run).
+-behaviour(gen_server).
+-include("rigidwarp.hrl").
+-export([start/2, stop/1, is_run/1, subscribe/4, status/1, stats/1, gvt/1, ring/1, processes/1]).
+-export([start_link/2, init/1, handle_call/3, handle_cast/2, handle_info/2, terminate/2]).
+-export_type([options/0, status/0, who/0, subscription/0]).
+
+%% The simulation's options (rw_sim, rw_sim_sup), and: buckets; schedulers
+%% (rw_schedulers); the restart budget; checkpoint_ms, wall time between
+%% checkpoints; from, the checkpoint to start from; subscribers from the
+%% start.
+-type options() :: #{buckets => pos_integer(), schedulers => pos_integer(),
+                     max_restarts => non_neg_integer(), restart_period_ms => pos_integer(),
+                     checkpoint_ms => non_neg_integer(), from => rw_reference:checkpoint(),
+                     subscribers => [subscription()], atom() => term()}.
+-type subscription() :: {pid(), none | times | frames, Checkpoints :: boolean()}.
+-type who() :: rw_sim_sup:who() | supervisor | stalled.
+-type status() :: running | done | {crashed, who(), term()}.
+
+-define(DEFAULT_BUCKETS, 64).
+-define(DEFAULT_MAX_RESTARTS, 5).
+-define(DEFAULT_RESTART_PERIOD_MS, 10000).
+%% The options the simulation's tree takes.
+-define(SIM_KEYS, [groups, group_max, regroup_every, grouping, profile, delay, watchdog_ms, ring_size,
+                   checkpoint_ms]).
+
+-record(r, {
+    scene :: #scene{},                        % from the run's first start time
+    opts :: options(),
+    buckets :: pos_integer(),
+    records :: ets:tid(),
+    ring :: ets:tid(),
+    stats :: rw_stats:counters(),
+    subs = [] :: [subscription()],
+    checkpoint :: rw_reference:checkpoint() | none,
+    delivered = -1 :: integer(),              % the last frame delivered, in ticks
+    status = running :: status(),
+    sup = none :: pid() | none,
+    sim :: #sim{} | undefined,
+    watched = #{} :: #{reference() => {pid(), rw_sim_sup:who()}},
+    restarts = [] :: [integer()],             % when, in the budget's period (monotonic ms)
+    restarted = 0 :: non_neg_integer(),
+    started :: integer(),                     % monotonic ms
+    ended = none :: none | integer()
+}).
+
+%% Start a run of Scene under rw_sims_sup.
+-spec start(#scene{}, options()) -> {ok, pid()} | {error, term()}.
+start(Scene, Opts) -> supervisor:start_child(rw_sims_sup, [Scene, Opts]).
+
+%% Stop it: no process or table is left behind.
+-spec stop(pid()) -> ok.
+stop(Run) ->
+    _ = supervisor:terminate_child(rw_sims_sup, Run),
+    ok.
+
+%% Is Pid a live run (a handle's process, not anything else)?
+-spec is_run(term()) -> boolean().
+is_run(Pid) when is_pid(Pid), node(Pid) =:= node() ->
+    case erlang:process_info(Pid, dictionary) of
+        {dictionary, D} -> proplists:get_value('$initial_call', D) =:= {?MODULE, init, 1};
+        undefined -> false
+    end;
+is_run(_) -> false.
+
+-spec subscribe(pid(), pid(), none | times | frames, boolean()) -> ok.
+subscribe(Run, Pid, What, Checkpoints) -> gen_server:call(Run, {subscribe, {Pid, What, Checkpoints}}).
+
+-spec status(pid()) -> status().
+status(Run) -> gen_server:call(Run, status).
+
+%% GVT in ms: the time of the latest committed sync point (-1 before the
+%% first).
+-spec gvt(pid()) -> number().
+gvt(Run) -> gen_server:call(Run, gvt).
+
+%% The processes of the simulation's tree as it stands, with their names
+%% (none between a fault and the restart, or after the end).
+-spec processes(pid()) -> [{pid(), rw_sim_sup:who()}].
+processes(Run) -> gen_server:call(Run, processes).
+
+-spec ring(pid()) -> ets:tid().
+ring(Run) -> gen_server:call(Run, ring).
+
+%% The counters so far (committed work up to GVT only, wall time frozen
+%% at the end), GVT, how far the fastest body is ahead, the status.
+-spec stats(pid()) -> map().
+stats(Run) -> gen_server:call(Run, stats).
+
+-spec start_link(#scene{}, options()) -> {ok, pid()} | {error, term()}.
+start_link(Scene, Opts) -> gen_server:start_link(?MODULE, {Scene, Opts}, []).
+
+-spec init({#scene{}, options()}) -> {ok, #r{}} | {stop, term()}.
+init({Scene, Opts}) ->
+    process_flag(trap_exit, true),
+    case schedulers(Opts) of
+        ok ->
+            R = #r{scene = Scene, opts = Opts, buckets = buckets(Scene, Opts),
+                   records = ets:new(rw_records, [ordered_set, public, {write_concurrency, true}]),
+                   ring = ets:new(rw_frames, [set, public, {read_concurrency, true}]),
+                   stats = rw_stats:new(), subs = maps:get(subscribers, Opts, []),
+                   checkpoint = maps:get(from, Opts, none), started = erlang:monotonic_time(millisecond)},
+            case incarnate(R) of
+                {ok, R1} -> {ok, R1};
+                {error, Reason} -> {stop, Reason}
+            end;
+        {error, Message} ->
+            {stop, {schedulers, Message}}
+    end.
+
+schedulers(#{schedulers := N}) -> rw_schedulers:acquire(N);
+schedulers(_) -> ok.
+
+buckets(#scene{buckets = undefined}, Opts) -> maps:get(buckets, Opts, ?DEFAULT_BUCKETS);
+buckets(#scene{buckets = B}, Opts) -> maps:get(buckets, Opts, B).
+
+%% Start the simulation's tree from the latest checkpoint (or the scene's
+%% start) and watch every process in it.
+incarnate(#r{scene = Scene0, checkpoint = Checkpoint, opts = Opts} = R) ->
+    Scene = case Checkpoint of
+                none -> Scene0;
+                _ -> rw_scene:from_checkpoint(Scene0, Checkpoint)
+            end,
+    SimOpts = (maps:with(?SIM_KEYS, Opts))#{run => self(), frames => lists:keymember(frames, 2, R#r.subs)},
+    case rw_sim_sup:start_link(Scene, R#r.buckets, #{records => R#r.records, ring => R#r.ring}, R#r.stats, SimOpts) of
+        {ok, Sup, Sim, Named} ->
+            {ok, R#r{sup = Sup, sim = Sim,
+                     watched = maps:from_list([{erlang:monitor(process, P), {P, Who}} || {P, Who} <- Named])}};
+        {error, _} = Error ->
+            Error
+    end.
+
+%% Stop the simulation's tree (nothing it does matters any more).
+teardown(#r{sup = none} = R) -> R;
+teardown(#r{sup = Sup, watched = W} = R) ->
+    _ = [erlang:demonitor(Ref, [flush]) || Ref <- maps:keys(W)],
+    exit(Sup, shutdown),
+    receive {'EXIT', Sup, _} -> ok
+    after 5000 ->
+            exit(Sup, kill),
+            receive {'EXIT', Sup, _} -> ok end
+    end,
+    R#r{sup = none, watched = #{}}.
+
+-spec handle_call(term(), gen_server:from(), #r{}) -> {reply, term(), #r{}}.
+handle_call({subscribe, {Pid, What, _} = Sub}, _From, #r{subs = Subs, sim = Sim} = R) ->
+    _ = case What =:= frames andalso not lists:keymember(frames, 2, Subs) andalso R#r.sup =/= none of
+            true -> rw_gvt:send_frames(Sim#sim.gvt);
+            false -> ok
+        end,
+    {reply, ok, R#r{subs = [Sub | lists:keydelete(Pid, 1, Subs)]}};
+handle_call(status, _From, R) ->
+    {reply, R#r.status, R};
+handle_call(gvt, _From, R) ->
+    {reply, ms(gvt_tick(R), R), R};
+handle_call(processes, _From, #r{watched = W} = R) ->
+    {reply, maps:values(W), R};
+handle_call(ring, _From, R) ->
+    {reply, R#r.ring, R};
+handle_call(stats, _From, R) ->
+    {reply, stats_of(R), R}.
+
+-spec handle_cast(term(), #r{}) -> {noreply, #r{}}.
+handle_cast(_Msg, R) -> {noreply, R}.
+
+-spec handle_info(term(), #r{}) -> {noreply, #r{}}.
+handle_info({rw_frame, _Gvt, {frame, Ms, _} = Frame}, R) ->
+    {noreply, deliver(Ms, Frame, R)};
+handle_info({rw_frame_time, _Gvt, Ms}, R) ->
+    {noreply, deliver(Ms, none, R)};
+handle_info({rw_checkpoint, _Gvt, {checkpoint, T, _, _} = C}, #r{checkpoint = Old} = R) ->
+    %% a checkpoint from a tree stopped since is committed all the same
+    case Old of
+        {checkpoint, OldT, _, _} when OldT >= T -> {noreply, R};
+        _ ->
+            _ = [Pid ! {rw_checkpoint, self(), C} || {Pid, _, true} <- R#r.subs],
+            {noreply, R#r{checkpoint = C}}
+    end;
+handle_info({rw_done, _Gvt, EndMs}, #r{status = running} = R) ->
+    R1 = teardown(R),
+    ok = release_schedulers(R1),
+    _ = [Pid ! {rw_done, self(), EndMs} || {Pid, _, _} <- R1#r.subs],
+    {noreply, R1#r{status = done, ended = erlang:monotonic_time(millisecond)}};
+handle_info({rw_stalled, Gvt, Ms, Report}, #r{sim = #sim{gvt = Gvt}, sup = Sup} = R) when Sup =/= none ->
+    {noreply, fault(stalled, {gvt_stuck, Ms, Report}, R)};
+handle_info({'DOWN', Ref, process, _Pid, Reason}, #r{watched = W} = R) ->
+    case maps:find(Ref, W) of
+        {ok, {_, Who}} -> {noreply, fault(Who, Reason, R)};
+        error -> {noreply, R}
+    end;
+handle_info({'EXIT', Sup, Reason}, #r{sup = Sup} = R) ->
+    {noreply, fault(supervisor, Reason, R)};
+handle_info(_Msg, R) ->
+    %% messages of a tree stopped since
+    {noreply, R}.
+
+-spec terminate(term(), #r{}) -> ok.
+terminate(_Reason, R) ->
+    _ = teardown(R),
+    release_schedulers(R).
+
+release_schedulers(#r{opts = #{schedulers := _}}) -> rw_schedulers:release();
+release_schedulers(_) -> ok.
+
+%% A frame GVT has passed, from this tree or one stopped since: to every
+%% subscriber, unless it was delivered before a restart.
+deliver(Ms, Frame, #r{delivered = Last, scene = Scene} = R) ->
+    T = tick(Ms, Scene),
+    case T > Last of
+        true ->
+            Self = self(),
+            _ = [case What of
+                     frames when Frame =/= none -> Pid ! {rw_frame, Self, Frame};
+                     times -> Pid ! {rw_frame_time, Self, Ms};
+                     _ -> ok
+                 end || {Pid, What, _} <- R#r.subs],
+            R#r{delivered = T};
+        false ->
+            R
+    end.
+
+%% A process of the tree died (or GVT stalled): restart from the latest
+%% checkpoint, unless the budget is spent.
+fault(_Who, _Reason, #r{status = Status} = R) when Status =/= running -> R;
+fault(Who, Reason, #r{opts = Opts} = R0) ->
+    R = teardown(R0),
+    Now = erlang:monotonic_time(millisecond),
+    Max = maps:get(max_restarts, Opts, ?DEFAULT_MAX_RESTARTS),
+    Period = maps:get(restart_period_ms, Opts, ?DEFAULT_RESTART_PERIOD_MS),
+    Recent = [T || T <- R#r.restarts, Now - T < Period],
+    case length(Recent) < Max of
+        true ->
+            From = case R#r.checkpoint of
+                       none -> rw_scene:ms(R#r.scene, R#r.scene#scene.start);
+                       {checkpoint, _, Ms, _} -> Ms
+                   end,
+            logger:warning("rigidwarp: ~ts: ~ts; restarting from the checkpoint at ~p ms (restart ~b of at most ~b "
+                           "in ~b ms)", [R#r.scene#scene.name, describe(Who, Reason), From, length(Recent) + 1, Max,
+                                         Period]),
+            ok = rw_commits:keep_only(R#r.records, rw_ring:ticks(R#r.ring)),
+            R1 = R#r{restarts = [Now | Recent], restarted = R#r.restarted + 1},
+            case incarnate(R1) of
+                {ok, R2} -> R2;
+                {error, Why} -> crashed(supervisor, Why, R1)
+            end;
+        false ->
+            crashed(Who, Reason, R)
+    end.
+
+crashed(Who, Reason, R) ->
+    logger:error("rigidwarp: ~ts: ~ts; past the restart budget after ~b restarts, the run has crashed at GVT ~p ms",
+                 [R#r.scene#scene.name, describe(Who, Reason), R#r.restarted, ms(gvt_tick(R), R)]),
+    ok = release_schedulers(R),
+    _ = [Pid ! {rw_crashed, self(), Who, Reason} || {Pid, _, _} <- R#r.subs],
+    R#r{status = {crashed, Who, Reason}, ended = erlang:monotonic_time(millisecond)}.
+
+%% What died and why, for the log.
+describe(stalled, {gvt_stuck, Ms, Report}) ->
+    io_lib:format("GVT stuck at ~p ms~n~ts", [Ms, Report]);
+describe(Who, Reason) ->
+    io_lib:format("~0p died: ~0P", [Who, Reason, 12]).
+
+%% GVT in ticks: the later of the frames delivered and the tree's own GVT.
+gvt_tick(#r{sup = none, delivered = D}) -> D;
+gvt_tick(#r{sim = #sim{gvt_now = Now}, delivered = D}) -> max(D, atomics:get(Now, 1)).
+
+ms(T, #r{scene = Scene}) -> rw_scene:ms(Scene, T).
+
+tick(Ms, #scene{tick_us = U}) -> round(Ms * 1000 / U).
+
+stats_of(#r{scene = #scene{spheres = Spheres, substep = Dt, duration = End} = Scene, stats = Ref,
+            sim = Sim, started = T0} = R) ->
+    Profile = case Sim of #sim{profile = P} -> P; undefined -> false end,
+    Raw = rw_stats:read(Ref, Profile),
+    Start = case maps:get(from, R#r.opts, none) of
+                none -> Scene#scene.start;
+                {checkpoint, S, _, _} -> S
+            end,
+    G = gvt_tick(R),
+    N = length(Spheres),
+    Committed = N * (max(G, Start) - Start) div Dt,
+    Computed = maps:get(computed_substeps, Raw),
+    Wall = max(1, case R#r.ended of none -> erlang:monotonic_time(millisecond); E -> E end - T0),
+    Lead = case {R#r.sup, Sim} of
+               {none, _} -> G;
+               {_, #sim{lvts = Lvts}} ->
+                   #{size := Size} = atomics:info(Lvts),
+                   lists:max([atomics:get(Lvts, I) || I <- lists:seq(1, Size, 8)])
+           end,
+    GvtMs = ms(G, R),
+    Raw#{rollbacks => maps:get(primary_rollbacks, Raw) + maps:get(secondary_rollbacks, Raw),
+         committed_substeps => Committed,
+         efficiency => case Computed of 0 -> 1.0; _ -> Committed / Computed end,
+         gvt => GvtMs, start_ms => ms(Start, R), end_ms => ms(End, R), max_lvt => ms(max(Lead, G), R), wall_ms => Wall,
+         realtime_factor => max(0, GvtMs - ms(Start, R)) / Wall,
+         status => case R#r.status of {crashed, _, _} -> crashed; Status -> Status end,
+         restarts => R#r.restarted}.

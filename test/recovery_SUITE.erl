@@ -1,0 +1,224 @@
+%% Faults cost nothing: a property kills random processes of running
+%% simulations (any body, bucket, the GVT process, the table owner, the
+%% watchdog) at random times, several times per run, and checks that the
+%% frames equal the reference's bit for bit and that nothing of the
+%% simulation is left behind; past the restart budget the caller hears
+%% {crashed, Who, Reason} within a second.
+-module(recovery_SUITE).
+-include_lib("proper/include/proper.hrl").
+-include_lib("common_test/include/ct.hrl").
+-include_lib("stdlib/include/assert.hrl").
+-include_lib("rigidwarp/include/rigidwarp.hrl").
+-include("rw_test.hrl").
+-export([all/0, suite/0, init_per_suite/1, end_per_suite/1]).
+-export([random_kills_change_no_frame/1, past_the_budget_crashes_promptly/1, api_after_crash_and_stop/1,
+         schedulers_are_lent_not_taken/1]).
+
+suite() -> [{timetrap, {minutes, 10}}].
+
+all() -> [random_kills_change_no_frame, past_the_budget_crashes_promptly, api_after_crash_and_stop,
+          schedulers_are_lent_not_taken].
+
+%% Contact-heavy scenes, each over a part where contacts go on all along.
+-define(SCENES, [{"bouncing_50_250", scenario, 1000}, {"pile_40", test, 1200}, {"rain_on_logs", test, 800},
+                 {"cylinders_200", scenario, 700}]).
+
+init_per_suite(Config) ->
+    {ok, _} = application:ensure_all_started(rigidwarp),
+    logger:set_application_level(rigidwarp, error),
+    Scenes = [begin
+                  File = case Where of
+                             scenario -> rw_test_lib:scenario(Name ++ ".json");
+                             test -> rw_test_lib:test_scene(Name ++ ".json")
+                         end,
+                  {ok, Scene} = rigidwarp:load(File, #{until => Until}),
+                  {Name, {Scene, reference_frames(Scene)}}
+              end || {Name, Where, Until} <- ?SCENES],
+    [{scenes, maps:from_list(Scenes)} | Config].
+
+end_per_suite(_Config) ->
+    logger:unset_application_level(rigidwarp),
+    ok.
+
+reference_frames(Scene) ->
+    Self = self(),
+    {ok, _} = rw_reference:run(Scene, #{on_frame => fun(F) -> Self ! {reference, F} end}),
+    drain(reference).
+
+drain(Tag) -> receive {Tag, F} -> [F | drain(Tag)] after 0 -> [] end.
+
+%%% Properties
+
+kill() -> {range(0, 150), oneof([body, body, bucket, gvt, tables, watchdog]), pos_integer()}.
+
+random_kills_change_no_frame(Config) ->
+    Scenes = ?config(scenes, Config),
+    Tally = ets:new(tally, [public]),
+    ets:insert(Tally, [{kills, 0}, {restarts, 0}, {runs, 0}]),
+    Prop = ?FORALL({Name, Kills, CheckpointMs}, {oneof(maps:keys(Scenes)), [kill(), kill() | list(kill())], range(5, 200)},
+                   begin
+                       {Scene, Reference} = maps:get(Name, Scenes),
+                       {Result, Frames, Done} = run_with_kills(Scene, lists:sublist(Kills, 4), CheckpointMs),
+                       Restarts = case Result of {ok, #{restarts := R}} -> R; _ -> -1 end,
+                       ets:update_counter(Tally, kills, Done),
+                       ets:update_counter(Tally, restarts, max(0, Restarts)),
+                       ets:update_counter(Tally, runs, 1),
+                       ?WHENFAIL(ct:pal("~s, checkpoints every ~b ms, kills ~p (~b done): ~P~nfirst difference: ~p",
+                                        [Name, CheckpointMs, Kills, Done, Result, 8,
+                                         rw_test_lib:first_difference(Reference, Frames)]),
+                                 aggregate([list_to_atom(Name)],
+                                           conjunction([{ok, element(1, Result) =:= ok},
+                                                        {restarted, Restarts >= Done},
+                                                        {frames, rw_test_lib:bitwise_equal(Reference, Frames)},
+                                                        {no_leak, no_leak()}])))
+                   end),
+    true = proper:quickcheck(Prop, [{numtests, 30}, {to_file, user}, long_result]),
+    [{_, Kills}] = ets:lookup(Tally, kills),
+    [{_, Restarts}] = ets:lookup(Tally, restarts),
+    [{_, Runs}] = ets:lookup(Tally, runs),
+    io:format(user, "fault injection: ~b kills survived in ~b runs (~b restarts)~n", [Kills, Runs, Restarts]),
+    ?assert(Kills >= 2 * Runs),
+    {comment, io_lib:format("~b kills survived in ~b runs (~b restarts)", [Kills, Runs, Restarts])}.
+
+%% Run Scene while a killer kills, at each {DelayMs, Kind, Pick} (delays
+%% after the previous kill), a process of that kind of the simulation's
+%% current tree: the run's result, its frames and how many kills landed.
+run_with_kills(Scene, Kills, CheckpointMs) ->
+    Self = self(),
+    Before = [P || {_, P, _, _} <- supervisor:which_children(rw_sims_sup)],
+    Killer = spawn_link(fun() -> killer(Self, Before, Kills, 0) end),
+    Result = rw_timewarp:run(Scene, #{on_frame => fun(F) -> Self ! {frame, F} end, checkpoint_ms => CheckpointMs,
+                                      max_restarts => 100}),
+    Killer ! stop,
+    Done = receive {killed, N} -> N end,
+    {Result, drain(frame), Done}.
+
+killer(Parent, _Before, [], N) ->
+    receive stop -> Parent ! {killed, N} end;
+killer(Parent, Before, [{Delay, Kind, Pick} | Rest], N) ->
+    receive
+        stop -> Parent ! {killed, N}
+    after Delay ->
+            Victims = case [P || {_, P, _, _} <- supervisor:which_children(rw_sims_sup)] -- Before of
+                          [Run] -> [P || {P, Who} <- processes(Run), kind(Who) =:= Kind];
+                          _ -> []
+                      end,
+            case Victims of
+                [] ->
+                    killer(Parent, Before, Rest, N);
+                _ ->
+                    exit(lists:nth(1 + Pick rem length(Victims), Victims), kill),
+                    killer(Parent, Before, Rest, N + 1)
+            end
+    end.
+
+processes(Run) ->
+    try rw_run:processes(Run) catch exit:_ -> [] end.
+
+kind({body, _}) -> body;
+kind({bucket, _}) -> bucket;
+kind(Who) -> Who.
+
+%% Nothing of a run is left: no simulation, no process, no table.
+no_leak() ->
+    no_leak(20).
+
+no_leak(0) -> false;
+no_leak(Tries) ->
+    case supervisor:which_children(rw_sims_sup) =:= [] andalso
+        lists:all(fun(T) -> ets:info(T, name) =/= rw_records andalso ets:info(T, name) =/= rw_frames end, ets:all()) of
+        true -> true;
+        false -> timer:sleep(50), no_leak(Tries - 1)
+    end.
+
+%%% Examples
+
+%% With no restarts left, any fault ends the run at once: the caller of
+%% run/2 and of await/2 gets {crashed, Who, Reason} within a second, stats/1
+%% says crashed, and the frames committed so far stay readable until stop.
+past_the_budget_crashes_promptly(Config) ->
+    {Scene, Reference} = maps:get("bouncing_50_250", ?config(scenes, Config)),
+    File = Scene#scene.file,
+    {ok, Sim} = rigidwarp:start(File, #{until => 1000, max_restarts => 0}),
+    #{run := Run} = Sim,
+    wait_for_frames(Sim, 200),
+    [Gvt | _] = [P || {P, gvt} <- rw_run:processes(Run)],
+    T0 = erlang:monotonic_time(millisecond),
+    exit(Gvt, kill),
+    ?assertEqual({error, {crashed, gvt, killed}}, rigidwarp:await(Sim, 5000)),
+    ?assert(erlang:monotonic_time(millisecond) - T0 < 1000),
+    ?assertMatch(#{status := crashed}, rigidwarp:stats(Sim)),
+    {frame, Last, _} = Latest = rigidwarp:frames(Sim),
+    ?assertBitwise(lists:keyfind(Last, 2, Reference), Latest),
+    ?assertEqual([], rw_run:processes(Run)),
+    ok = rigidwarp:stop(Sim),
+    ?assert(no_leak()),
+    %% run/2 alike
+    Self = self(),
+    Kill = fun({frame, 100, _}) ->
+                   [R] = [P || {_, P, _, _} <- supervisor:which_children(rw_sims_sup)],
+                   [B | _] = [P || {P, {bucket, _}} <- rw_run:processes(R)],
+                   Self ! {killed, erlang:monotonic_time(millisecond)},
+                   exit(B, kill);
+              (_) -> ok
+           end,
+    {error, {crashed, {bucket, _}, killed}} = rw_timewarp:run(Scene, #{on_frame => Kill, max_restarts => 0}),
+    Killed = receive {killed, K} -> K end,
+    ?assert(erlang:monotonic_time(millisecond) - Killed < 1000),
+    ?assert(no_leak()),
+    ok.
+
+wait_for_frames(Sim, Ms) ->
+    case rigidwarp:gvt(Sim) of
+        G when G >= Ms -> ok;
+        _ -> timer:sleep(10), wait_for_frames(Sim, Ms)
+    end.
+
+%% Calls on a forged or stopped handle answer {error, _}; start/2 refuses
+%% what only run/2 takes; run/2 leaks nothing when its callback raises.
+api_after_crash_and_stop(Config) ->
+    {Scene, _} = maps:get("bouncing_50_250", ?config(scenes, Config)),
+    File = Scene#scene.file,
+    {ok, Sim} = rigidwarp:start(File, #{until => 1000}),
+    ok = rigidwarp:stop(Sim),
+    Stopped = {error, "the simulation has been stopped"},
+    [?assertEqual(Stopped, Call()) || Call <- [fun() -> rigidwarp:frames(Sim) end, fun() -> rigidwarp:gvt(Sim) end,
+                                               fun() -> rigidwarp:stats(Sim) end, fun() -> rigidwarp:view(Sim) end,
+                                               fun() -> rigidwarp:await(Sim, 10) end,
+                                               fun() -> rigidwarp:subscribe(Sim) end, fun() -> rigidwarp:stop(Sim) end]],
+    Forged = Sim#{run := self()},
+    ?assertEqual(Stopped, rigidwarp:frames(Forged)),
+    ?assertMatch({error, "not a simulation" ++ _}, rigidwarp:gvt(#{run => self()})),
+    [?assertMatch({error, "start/2 does not take " ++ _}, rigidwarp:start(File, #{K => V}))
+     || {K, V} <- [{frames, "x.jsonl"}, {on_frame, fun(_) -> ok end}, {on_progress, fun(_) -> ok end},
+                   {resume, true}]],
+    Boom = fun({frame, 50, _}) -> error(boom); (_) -> ok end,
+    {error, Message} = rigidwarp:run(File, #{until => 1000, on_frame => Boom}),
+    ?assertMatch({match, _}, re:run(Message, "boom")),
+    ?assertEqual(nomatch, string:find(Message, "\n")),
+    ?assert(no_leak()),
+    ?assertEqual([], [M || {rw_frame, _, _} = M <- element(2, erlang:process_info(self(), messages))]),
+    ok.
+
+%% A run's schedulers are lent by the VM for the run: two overlapping runs
+%% with different counts cannot both have them (the second is refused),
+%% and the count from before comes back when the run ends.
+schedulers_are_lent_not_taken(Config) ->
+    {Scene, _} = maps:get("bouncing_50_250", ?config(scenes, Config)),
+    File = Scene#scene.file,
+    Online = erlang:system_info(schedulers_online),
+    {ok, A} = rigidwarp:start(File, #{until => 3000, schedulers => 1}),
+    ?assertEqual(1, erlang:system_info(schedulers_online)),
+    case erlang:system_info(schedulers) of
+        1 -> ok;
+        _ -> ?assertMatch({error, "schedulers: another simulation runs with 1 " ++ _},
+                          rigidwarp:start(File, #{until => 100, schedulers => 2}))
+    end,
+    {ok, B} = rigidwarp:start(File, #{until => 100, schedulers => 1}),
+    ok = rigidwarp:await(B, 10000),
+    ok = rigidwarp:stop(B),
+    ?assertEqual(1, erlang:system_info(schedulers_online)),
+    ok = rigidwarp:stop(A),
+    timer:sleep(50),
+    ?assertEqual(Online, erlang:system_info(schedulers_online)),
+    ok.
