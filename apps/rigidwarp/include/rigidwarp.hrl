@@ -52,3 +52,7 @@
     grouping = persistent :: persistent | eager,
     delay = none :: none | {Seed :: integer(), MaxMs :: non_neg_integer()}   % test hook (rw_body)
 }).
+
+%% Wall time (ms) between checkpoints, by default: how much work a fault or
+%% an interruption can cost at most.
+-define(CHECKPOINT_MS, 500).

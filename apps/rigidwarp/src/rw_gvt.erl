@@ -94,7 +94,7 @@ init({#sim{scene = #scene{spheres = Spheres}, n = N, records = Records, ring = R
     _ = process_flag(min_heap_size, min(2048 * N, 1 bsl 21)),
     ok = rw_ring:init(Ring, Records, N),
     Idxs = lists:sort([I || #sphere{idx = I} <- Spheres]),
-    Every = maps:get(checkpoint_ms, Opts, 1000),
+    Every = maps:get(checkpoint_ms, Opts, ?CHECKPOINT_MS),
     {ok, #s{sim = Sim, run = maps:get(run, Opts, undefined), frames = maps:get(frames, Opts, false),
             ring_size = maps:get(ring_size, Opts, 1024), idxs = Idxs, checkpoint_ms = Every,
             checkpoint_due = erlang:monotonic_time(millisecond) + Every,

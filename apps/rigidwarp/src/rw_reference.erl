@@ -23,7 +23,7 @@
                    pair_contacts := non_neg_integer(), fixture_contacts := non_neg_integer(),
                    frames := non_neg_integer(), sim_ms := number()}.
 %% on_checkpoint: called after the frame of the same time, at frame times
-%% at least checkpoint_ms (default 1000) of wall time apart.
+%% at least checkpoint_ms (default 500) of wall time apart.
 -type options() :: #{on_frame => fun((frame()) -> any()), on_checkpoint => fun((checkpoint()) -> any()),
                      checkpoint_ms => non_neg_integer()}.
 
@@ -32,7 +32,7 @@ run(#scene{duration = End, substep = Dt, frame = Frame, spheres = Spheres, initi
     Opts) ->
     OnFrame0 = maps:get(on_frame, Opts, fun(_) -> ok end),
     OnCheckpoint = maps:get(on_checkpoint, Opts, none),
-    Every = maps:get(checkpoint_ms, Opts, 1000),
+    Every = maps:get(checkpoint_ms, Opts, ?CHECKPOINT_MS),
     %% frames leave the engine with their time in ms; the accumulator is
     %% when the next checkpoint is due (monotonic ms)
     OnFrame = fun({frame, T, Bodies}, States, Due) ->

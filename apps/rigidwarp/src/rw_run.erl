@@ -115,7 +115,8 @@ init({Scene, Opts}) ->
     process_flag(trap_exit, true),
     case schedulers(Opts) of
         ok ->
-            R = #r{scene = Scene, opts = Opts, buckets = buckets(Scene, Opts),
+            R = #r{scene = Scene, opts = maps:merge(#{ring_size => ring_size(Scene)}, Opts),
+                   buckets = buckets(Scene, Opts),
                    records = ets:new(rw_records, [ordered_set, public, {write_concurrency, true}]),
                    ring = ets:new(rw_frames, [set, public, {read_concurrency, true}]),
                    stats = rw_stats:new(), subs = maps:get(subscribers, Opts, []),
@@ -127,6 +128,13 @@ init({Scene, Opts}) ->
         {error, Message} ->
             {stop, {schedulers, Message}}
     end.
+
+%% The frames the ring keeps unless asked otherwise: the latest 1024, or
+%% fewer (but 16 at least) for scenes of more than 128 bodies, so that the
+%% ring holds at most 2^17 body records (430-710 bytes each: 55-90 MB).
+-define(RING_RECORDS, 1 bsl 17).
+
+ring_size(#scene{spheres = Spheres}) -> max(16, min(1024, ?RING_RECORDS div max(1, length(Spheres)))).
 
 schedulers(#{schedulers := N}) -> rw_schedulers:acquire(N);
 schedulers(_) -> ok.

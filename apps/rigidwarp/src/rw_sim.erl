@@ -36,9 +36,15 @@ new(#scene{spheres = Spheres, duration = End, frame = Frame, stride = Stride, st
     #sim{scene = Scene, n = length(Spheres), end_t = End, sync = rw_sync:new(Frame, Stride, End, Period, Start),
          buckets = Buckets, records = Records, counts = Counts, ring = Ring, owners = Owners, procs = Procs,
          met = Met, stats = Stats, profile = maps:get(profile, Opts, false),
-         lvts = atomics:new(lvt_slot(lists:max([0 | [I || #sphere{idx = I} <- Spheres]])), [{signed, false}]),
+         lvts = lvts(Spheres, Start),
          gvt_now = gvt_now(), group_max = maps:get(group_max, Opts, ?DEFAULT_GROUP_MAX),
          grouping = maps:get(grouping, Opts, persistent), delay = maps:get(delay, Opts, none)}.
+
+%% Every body's LVT, at its start time until it publishes another.
+lvts(Spheres, Start) ->
+    Lvts = atomics:new(lvt_slot(lists:max([0 | [I || #sphere{idx = I} <- Spheres]])), [{signed, false}]),
+    _ = [atomics:put(Lvts, lvt_slot(I), Start) || Start > 0, #sphere{idx = I} <- Spheres],
+    Lvts.
 
 %% What a body holds: not the whole scene's bodies, which it never reads
 %% (a copy per body fills the heaps).

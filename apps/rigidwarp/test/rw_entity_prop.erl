@@ -120,8 +120,8 @@ outcome(#m{antievents = A, rollbacks = R, regroups = G}) ->
      case G of 0 -> no_regroup; _ -> regroups end}.
 
 scene_summary(#scene{spheres = Spheres, initial = Initial, duration = D, substep = Dt, stride = St, frame = F,
-                     model = #model{gravity = G, rotation = R, friction = Mu, ccd = Ccd}}) ->
-    #{duration => D, substep => Dt, stride => St, frame => F, gravity => G, rotation => R, friction => Mu, ccd => Ccd,
+                     model = #model{gravity = G, rotation = R, friction = Mu, ccd = Ccd}, start = T0}) ->
+    #{start => T0, duration => D, substep => Dt, stride => St, frame => F, gravity => G, rotation => R, friction => Mu, ccd => Ccd,
       spheres => [{Id, Rad, P, V} || {#sphere{id = Id, radius = Rad}, #st{p = P, v = V}} <- lists:zip(Spheres, Initial)]}.
 
 %%% Generators
@@ -147,8 +147,21 @@ scene() ->
                                             <<"max">> => [0.35, 0.35, 0.35], <<"radius">> => 0.1, <<"mass">> => 1.0,
                                             <<"speed">> => Speed}]},
              {ok, Scene} = rw_scene:from_map(Map, #{}),
-             Scene
+             resumed(Scene, Seed rem 3)
+
          end).
+
+%% A third of the runs start where a run from 0 committed a frame (a run
+%% resumed from a checkpoint): from the reference's checkpoint at a frame
+%% time in the first half.
+resumed(Scene, 0) -> Scene;
+resumed(#scene{duration = End, frame = F} = Scene, K) ->
+    T0 = (End div 2) div F div K * F,
+    Self = self(),
+    Ref = make_ref(),
+    {ok, _} = rw_reference:run(Scene#scene{duration = max(T0, F)},
+                               #{on_checkpoint => fun(C) -> Self ! {Ref, C} end, checkpoint_ms => 0}),
+    rw_scene:from_checkpoint(Scene, lists:last(drain(Ref))).
 
 %% Contact groups: off (one entity per body, as the paper), or groups of
 %% bodies near each other planned at every regroup point, however they
@@ -163,17 +176,17 @@ built({unbuilt, Scene, Groups}) -> model(Scene, Groups).
 
 -spec model(#scene{}, {off | {eager, pos_integer(), pos_integer()}, pos_integer()}) -> #m{}.
 model(#scene{spheres = Spheres, initial = Initial, duration = End, frame = Frame, stride = Stride, model = Model,
-             substep = Dt} = Scene, {Groups, NBuckets}) ->
+             substep = Dt, start = Start} = Scene, {Groups, NBuckets}) ->
     {Period, Max} = case Groups of
                         off -> {0, 1};
                         {eager, GMax, Every} -> {Every * Stride, GMax}
                     end,
-    Cal = rw_sync:new(Frame, Stride, End, Period),
+    Cal = rw_sync:new(Frame, Stride, End, Period, Start),
     Idxs = [I || #sphere{idx = I} <- Spheres],
     Ents = maps:from_list([{I, rw_entity:new(I, Scene, Cal, S, St)} || {#sphere{idx = I} = S, St} <- lists:zip(Spheres, Initial)]),
     M0 = #m{scene = Scene, cal = Cal, n = length(Spheres), ents = Ents,
             phase = maps:from_list([{I, ready} || I <- Idxs]), due = maps:from_list([{I, false} || I <- Idxs]),
-            owners = maps:from_list([{I, I} || I <- Idxs]), lvts = maps:from_list([{I, 0} || I <- Idxs]),
+            owners = maps:from_list([{I, I} || I <- Idxs]), lvts = maps:from_list([{I, Start} || I <- Idxs]),
             buckets = list_to_tuple([rw_cells:new(Model, Dt) || _ <- lists:seq(1, NBuckets)]), gp = #gvtp{groups = rw_regroup:new(Idxs, Max, eager)}},
     lists:foldl(fun(I, M) -> enqueue(sup, I, start, M) end, M0, Idxs).
 

@@ -18,7 +18,7 @@ view(Args) ->
                          orelse throw({usage, "view --live runs the timewarp engine only"}),
                      maps:is_key(frames, Opts) andalso throw({usage, "view --live does not take --frames"}),
                      ok = rw_viewer:prepare(),
-                     case rigidwarp:start(File, maps:without([engine, schedulers], Opts)) of
+                     case rigidwarp:start(File, maps:without([engine], Opts)) of
                          {ok, Sim} -> {live, Sim};
                          {error, Msg} -> throw({bad_input, Msg})
                      end;
