@@ -89,7 +89,8 @@ check_part(Path, Target, Info, Resume) ->
     Checks = [fun() -> writable_file(Path, Info) end,
               fun() -> writable_dir(Path, Dir) end,
               fun() -> side_file(Path, Target ++ ".part", Resume) end,
-              fun() -> side_file(Path, Target ++ ".checkpoint", Resume) end],
+              fun() -> side_file(Path, Target ++ ".checkpoint", Resume) end,
+              fun() -> side_file(Path, Target ++ ".checkpoint.tmp", Resume) end],
     first_error(Checks).
 
 first_error([]) -> ok;
@@ -125,8 +126,8 @@ writable_dir(Path, Dir) ->
         {error, Reason} -> fail(Path, io_lib:format("directory ~ts: ~ts", [Dir, file:format_error(Reason)]))
     end.
 
-%% TARGET.part and TARGET.checkpoint are replaced and renamed: only ever
-%% regular files (on resume, .part is kept and must be writable).
+%% TARGET.part, TARGET.checkpoint and its .tmp are replaced and renamed:
+%% only ever regular files (on resume, .part is kept and must be writable).
 side_file(Path, Side, Resume) ->
     case file:read_link_info(Side) of
         {error, enoent} -> ok;

@@ -316,10 +316,12 @@ check_test_() ->
                    Fifo = filename:join(Dir, "fifo"),
                    ok = sh("mkfifo " ++ Fifo),
                    Refused(Fifo, true, ".*fifo: not a regular file"),
+                   ok = sh("mkfifo " ++ filename:join(Dir, "y.jsonl.checkpoint.tmp")),
+                   Refused(filename:join(Dir, "y.jsonl"), false, ".*y.jsonl.checkpoint.tmp is in the way"),
                    ok = file:make_symlink("loop", filename:join(Dir, "loop")),
                    Refused(filename:join(Dir, "loop"), false, ".*too many levels of symbolic links"),
                    %% none of this left anything behind
-                   ?assertEqual(["fifo", "file", "loop", "x.jsonl.part"], ls(Dir))
+                   ?assertEqual(["fifo", "file", "loop", "x.jsonl.part", "y.jsonl.checkpoint.tmp"], ls(Dir))
            end).
 
 %% Root writes through mode bits (chmod 0555 does not stop it), so an

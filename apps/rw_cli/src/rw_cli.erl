@@ -9,7 +9,11 @@
       --engine ENGINE        timewarp (default, parallel) or reference (sequential oracle)
       --schedulers N         scheduler threads for the timewarp engine (default: all cores)
       --buckets N            TVHT bucket processes (default: the scene's buckets, else 64)
-      --frames FILE          write committed frames as JSON Lines to FILE
+      --frames FILE          write committed frames as JSON Lines to FILE (- for stdout);
+                             a file is written as FILE.part with FILE.checkpoint beside it
+                             and renamed to FILE at the end
+      --resume               continue an interrupted run with the same --frames FILE and
+                             options from its last checkpoint (starts over if there is none)
       --until MS             simulate up to MS milliseconds (default: the scene's duration_ms)
       --substep MS           substep in ms, 0.001 at the finest (default: the scene's substep_ms)
       --stride MS            LVT_ub - GVT in ms (default: the scene's stride_ms)
@@ -110,7 +114,7 @@ command_help("snapshot") -> ?SNAPSHOT_HELP;
 command_help("bench") -> ?BENCH_HELP;
 command_help(Cmd) -> throw({usage, "unknown command " ++ Cmd}).
 
-command("run", Args) -> run(rw_cli_args:parse(Args));
+command("run", Args) -> run(Args, rw_cli_args:parse(Args));
 command("validate", [File]) ->
     case rigidwarp:load(File, #{}) of
         {ok, _} -> io:format("~ts: ok~n", [File]), 0;
@@ -150,7 +154,20 @@ summary_line(File) ->
         _ -> ""
     end.
 
-run({File, Opts, Quiet}) ->
+run(Args, {File, Opts, Quiet}) ->
+    %% from the start, so that no signal meets OTP's default handler
+    ok = rw_cli_signals:install(self()),
+    %% a bad frames path is refused before anything is loaded or created
+    Resume = maps:get(resume, Opts, false),
+    Frames = maps:find(frames, Opts),
+    case Frames of
+        {ok, Path} ->
+            case rw_output:check(Path, Resume) of
+                ok -> ok;
+                {error, Msg0} -> throw({bad_input, Msg0})
+            end;
+        error -> ok
+    end,
     {ok, Scene} = case rigidwarp:load(File, Opts) of
                       {ok, _} = Ok -> Ok;
                       {error, Msg} -> throw({bad_input, Msg})
@@ -160,15 +177,52 @@ run({File, Opts, Quiet}) ->
                              true -> {#{}, fun() -> ok end};
                              false -> progress(Total, is_terminal())
                          end,
-    Result = rigidwarp:run_scene(Scene, maps:merge(Opts, Progress)),
-    Finish(),
+    Result = try
+                 rigidwarp:run_scene(Scene, maps:merge(Opts, Progress))
+             catch
+                 Class:Raised:Stack ->
+                     %% a run that a signal stopped ends as stopped, whatever
+                     %% the engine's processes did on the way down
+                     case rw_cli_signals:received() of
+                         none -> erlang:raise(Class, Raised, Stack);
+                         Sig -> {error, {interrupted, Sig, undefined}}
+                     end
+             after
+                 Finish()
+             end,
     case Result of
         {ok, Summary} ->
             io:put_chars([jiffy:encode(Summary), $\n]),
             0;
+        {error, {interrupted, Signal, LastMs}} ->
+            io:format(standard_error, "~ts~n", [interrupted(Args, Frames, LastMs)]),
+            rw_cli_signals:exit_code(Signal);
         {error, Reason} ->
             io:format(standard_error, "rigidwarp: ~ts~n", [rigidwarp:format_error(Reason)]),
             1
+    end.
+
+%% The line telling how to continue a stopped run: the same command with
+%% --resume, when its frames went to a file that can be resumed.
+interrupted(Args, Frames, LastMs) ->
+    At = case is_number(LastMs) of
+             true -> ["rigidwarp: interrupted at t=", rw_cli_args:format_ms(LastMs), " ms"];
+             false -> "rigidwarp: interrupted"
+         end,
+    case Frames of
+        error ->
+            [At, " (no --frames file to resume)"];
+        {ok, Path} ->
+            case rw_output:check(Path, true) of
+                ok ->
+                    Again = case lists:member("--resume", Args) of
+                                true -> Args;
+                                false -> Args ++ ["--resume"]
+                            end,
+                    [At, "; continue with: rigidwarp run ", lists:join(" ", [rw_cli_args:shell_quote(A) || A <- Again])];
+                {error, _} ->
+                    [At, " (frames to ", Path, " cannot be resumed)"]
+            end
     end.
 
 %% The progress line on stderr: redrawn in place (4 times a second) on a

@@ -1,9 +1,10 @@
 %% Flags shared by the escript's commands: the options of `rigidwarp run`
 %% (also taken by `view --live`), positive integers and times in ms, and
-%% times in ms as people write them. A bad flag throws {usage, Message},
+%% times in ms as people write them. A bad flag throws {usage, Message}
+%% (a flag missing the one it needs, {bad_input, Message}),
 %% which rw_cli:main/1 prints with exit code 2.
 -module(rw_cli_args).
--export([parse/1, bad_flag/2, pos_int/2, pos_ms/2, format_ms/1]).
+-export([parse/1, bad_flag/2, pos_int/2, pos_ms/2, format_ms/1, shell_quote/1]).
 
 -define(VALUE_FLAGS, ["--engine", "--schedulers", "--buckets", "--frames", "--until", "--substep",
                       "--stride", "--frame-ms", "--integrator", "--ccd", "--groups", "--group-max"]).
@@ -13,8 +14,11 @@
 parse(Args) -> parse(Args, undefined, #{}, false).
 
 parse([], undefined, _, _) -> throw({usage, "run needs a scene file"});
+parse([], _, #{resume := true} = Opts, _) when not is_map_key(frames, Opts) ->
+    throw({bad_input, "--resume needs --frames FILE (the file of the run to continue)"});
 parse([], File, Opts, Quiet) -> {File, Opts, Quiet};
 parse(["--quiet" | Rest], F, O, _) -> parse(Rest, F, O, true);
+parse(["--resume" | Rest], F, O, Q) -> parse(Rest, F, O#{resume => true}, Q);
 parse(["--engine", "reference" | Rest], F, O, Q) -> parse(Rest, F, O#{engine => reference}, Q);
 parse(["--engine", "timewarp" | Rest], F, O, Q) -> parse(Rest, F, O#{engine => timewarp}, Q);
 parse(["--engine", E | _], _, _, _) -> throw({usage, "--engine must be timewarp or reference, got " ++ E});
@@ -88,3 +92,15 @@ pos_int(Flag, V) ->
 -spec format_ms(number()) -> string().
 format_ms(T) when is_integer(T) -> integer_to_list(T);
 format_ms(T) -> float_to_list(T, [short]).
+
+%% An argument as a POSIX shell reads it back, quoted only where needed.
+-spec shell_quote(string()) -> string().
+shell_quote("") -> "''";
+shell_quote(Arg) ->
+    Plain = lists:all(fun(C) -> (C >= $a andalso C =< $z) orelse (C >= $A andalso C =< $Z) orelse
+                                    (C >= $0 andalso C =< $9) orelse lists:member(C, "-_./=:,+@%")
+                      end, Arg),
+    case Plain of
+        true -> Arg;
+        false -> "'" ++ lists:flatten(string:replace(Arg, "'", "'\\''", all)) ++ "'"
+    end.
