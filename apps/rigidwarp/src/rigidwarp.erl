@@ -25,7 +25,7 @@
                          on_frame => fun((rw_reference:frame()) -> any()),
                          on_progress => fun((map()) -> any())}.
 -type summary() :: #{atom() => term()}.
--type error_reason() :: string() | {crashed, rw_run:who(), term()} | {interrupted, atom(), number()}.
+-type error_reason() :: string() | {crashed, rw_run:who(), term()} | {interrupted, atom(), number() | undefined}.
 %% A running Time Warp simulation (from start/2).
 -opaque sim() :: rw_timewarp:handle().
 -export_type([sim/0]).
@@ -254,6 +254,8 @@ run_scene(Scene, Opts) ->
 -spec format_error(error_reason()) -> string().
 format_error({crashed, Who, Reason}) ->
     lists:flatten(io_lib:format("the simulation crashed past its restart budget: ~0p died: ~0P", [Who, Reason, 12]));
+format_error({interrupted, Signal, undefined}) ->
+    lists:flatten(io_lib:format("interrupted by ~s before the first frame", [Signal]));
 format_error({interrupted, Signal, Ms}) ->
     lists:flatten(io_lib:format("interrupted by ~s at t=~p ms", [Signal, Ms]));
 format_error(Message) when is_list(Message) -> Message.

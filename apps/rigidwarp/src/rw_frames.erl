@@ -4,7 +4,7 @@
 %% short, which also keeps -0.0 and subnormals: jiffy writes -0.0 as 0.0
 %% and 5.0e-324 as 5e-324, which reads back as 0.0).
 -module(rw_frames).
--export([encode/1, decode/1, writer/1]).
+-export([encode/1, decode/1]).
 
 -spec encode(rw_reference:frame()) -> iodata().
 encode({frame, T, Bodies}) ->
@@ -42,26 +42,3 @@ quat(_) -> undefined.
 
 wvec(#{<<"w">> := W}) -> list_to_tuple(W);
 wvec(_) -> undefined.
-
-%% A frame sink writing to File; the file is first written under a
-%% temporary name and renamed by the returned close function, so a failed
-%% run never leaves a half-written frames file behind.
--spec writer(file:filename()) -> {ok, fun((rw_reference:frame()) -> ok), fun((ok | abort) -> ok)} |
-          {error, term()}.
-writer(File) ->
-    Tmp = unicode:characters_to_list(File) ++ ".part",
-    case file:open(Tmp, [write, raw, binary, delayed_write]) of
-        {ok, Fd} ->
-            Sink = fun(Frame) -> ok = file:write(Fd, encode(Frame)) end,
-            Close = fun(ok) ->
-                            ok = file:close(Fd),
-                            ok = file:rename(Tmp, File);
-                       (abort) ->
-                            _ = file:close(Fd),
-                            _ = file:delete(Tmp),
-                            ok
-                    end,
-            {ok, Sink, Close};
-        {error, _} = Error ->
-            Error
-    end.

@@ -53,7 +53,7 @@ stats({rw_sim, Run, _}) -> rw_run:stats(Run).
 %% (without on_frame, the frames stay in the engine: only their times come
 %% here, for on_progress and the count) and on_checkpoint for checkpoints.
 %% {rw_interrupt, Signal} sent to the caller stops the run:
-%% {error, {interrupted, Signal, LastFrameMs}}. The run is stopped however
+%% {error, {interrupted, Signal, LastFrameMs}} (undefined before the first frame). The run is stopped however
 %% this returns, a callback's exception included.
 -spec run(#scene{}, options()) -> {ok, map()} | {error, term()}.
 run(Scene, Opts) ->
@@ -70,7 +70,7 @@ run(Scene, Opts) ->
                                   error -> fun(_) -> ok end
                               end},
             MRef = erlang:monitor(process, Run),
-            try collect(Run, MRef, Calls, 0, -1) of
+            try collect(Run, MRef, Calls, 0, undefined) of
                 {ok, Frames} -> {ok, (stats(H))#{frames => Frames}};
                 Error -> Error
             after
