@@ -50,8 +50,12 @@ accuracy: build
 run: build
 	$(ESCRIPT) run scenarios/bouncing_200_250.json --until 2000
 
+# The application started and the API's help printed, then the shell and its
+# first prompt (-noinput starts no shell; user_drv:start/0 starts it once the
+# greeting is out, OTP 25 having no shell:start_interactive/0).
 shell: build
-	ERL_FLAGS="$(VM_FLAGS)" $(REBAR) shell
+	erl $(VM_FLAGS) -pa _build/default/lib/*/ebin -config config/sys.config -noinput \
+	    -eval '{ok, _} = application:ensure_all_started(rigidwarp), rigidwarp:help(), user_drv:start()'
 
 clean:
 	$(REBAR) clean -a

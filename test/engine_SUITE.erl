@@ -16,7 +16,7 @@
 -export([scenarios_equal/1, contact_scenes_equal/1, strides_and_buckets_equal/1, random_scenes_equal/1,
          random_delays_terminate_and_equal/1, watchdog_names_stuck_body/1,
          no_leaks_after_100_runs/1, escript_frames_identical/1, frames_api/1, frame_times_only/1, ring_keeps_last_frames/1,
-         contact_groups/1, crashes_restart_from_checkpoint/1]).
+         contact_groups/1, crashes_restart_from_checkpoint/1, stats_tell_the_truth/1]).
 
 suite() -> [{timetrap, {minutes, 15}}].
 
@@ -27,7 +27,7 @@ groups() ->
                      escript_frames_identical, contact_groups]},
      {liveness, [], [random_delays_terminate_and_equal, watchdog_names_stuck_body]},
      {lifecycle, [], [no_leaks_after_100_runs, frames_api, frame_times_only, ring_keeps_last_frames,
-                      crashes_restart_from_checkpoint]}].
+                      crashes_restart_from_checkpoint, stats_tell_the_truth]}].
 
 init_per_suite(Config) ->
     {ok, _} = application:ensure_all_started(rigidwarp),
@@ -629,3 +629,29 @@ crashes_restart_from_checkpoint(_Config) ->
 victim({body, _}) -> body;
 victim({bucket, _}) -> bucket;
 victim(Who) -> Who.
+
+%% stats/1 counts only what is committed: while the run goes, committed
+%% body-substeps are the bodies times GVT in substeps and efficiency never
+%% exceeds 1; once the run has ended every figure stays as it was.
+stats_tell_the_truth(_Config) ->
+    {ok, Sim} = rigidwarp:start(rw_test_lib:scenario("bouncing_200_250.json"), #{until => 1500}),
+    Samples = sample(Sim, []),
+    ?assert(length(Samples) >= 3),
+    [begin
+         ?assert(E =< 1.0),
+         ?assertEqual(200 * G, C)
+     end || #{efficiency := E, gvt := G, committed_substeps := C} <- Samples, G >= 0],
+    Gvts = [G || #{gvt := G} <- Samples],
+    ?assertEqual(Gvts, lists:sort(Gvts)),
+    ok = rigidwarp:await(Sim, 60000),
+    Done = rigidwarp:stats(Sim),
+    timer:sleep(300),
+    ?assertBitwise(Done, rigidwarp:stats(Sim)),
+    ?assertMatch(#{status := done, gvt := 1500, committed_substeps := 300000}, Done),
+    ok = rigidwarp:stop(Sim).
+
+sample(Sim, Acc) ->
+    case rigidwarp:stats(Sim) of
+        #{status := running} = S -> timer:sleep(20), sample(Sim, [S | Acc]);
+        _ -> lists:reverse(Acc)
+    end.

@@ -4,9 +4,9 @@
 %%   {ok, #{scene => <<"head_on_elastic">>, realtime_factor => ..., ...}}
 -module(rigidwarp).
 -include("rigidwarp.hrl").
--export([run/2, run_scene/2, load/2, help/0, start/2, stop/1, frames/1, frames/2, frames_after/3,
+-export([run/2, run_scene/2, load/2, help/0, options/0, start/2, stop/1, frames/1, frames/2, frames_after/3,
          subscribe/1, await/2, gvt/1, stats/1, view/1, view/2, format_error/1]).
--export_type([run_options/0, summary/0, error_reason/0]).
+-export_type([run_options/0, summary/0, error_reason/0, kind/0]).
 
 -type run_options() :: #{engine => timewarp | reference,
                          buckets => pos_integer(), schedulers => pos_integer(),
@@ -30,9 +30,6 @@
 -opaque sim() :: rw_timewarp:handle().
 -export_type([sim/0]).
 
--define(OPTION_KEYS, [engine, until, substep, stride, frame_ms, integrator, ccd, frames, resume, on_frame,
-                      on_progress, buckets, schedulers, watchdog_ms, groups, group_max, max_restarts,
-                      restart_period_ms, checkpoint_ms, ring_size]).
 %% The options the Time Warp engine itself takes.
 -define(TIMEWARP_KEYS, [buckets, schedulers, watchdog_ms, groups, group_max, max_restarts, restart_period_ms,
                         checkpoint_ms, ring_size]).
@@ -40,26 +37,60 @@
 %% the handle (frames/1, subscribe/1), not to a file or a callback.
 -define(RUN_ONLY_KEYS, [frames, resume, on_frame, on_progress]).
 
+%% Every option of run/2 and start/2: its name, the values it takes (which
+%% check_values/1 checks) and what it does; help/0 prints this table, so
+%% the two cannot drift apart.
+-spec options() -> [{atom(), kind(), string()}].
+options() ->
+    [{engine, {one_of, [timewarp, reference]}, "timewarp (parallel, default) or reference (sequential; run/2 only)"},
+     {until, ms, "simulate up to this time (default: the scene's duration_ms)"},
+     {substep, ms, "substep (default: the scene's substep_ms)"},
+     {stride, ms, "LVT_ub - GVT, how far bodies may step ahead of GVT (default: the scene's)"},
+     {frame_ms, ms, "time between frames (default: the scene's)"},
+     {integrator, {one_of, rw_integrate:integrators()}, "the integrator (default: the scene's)"},
+     {ccd, boolean, "swept (continuous) collision tests (default: the scene's)"},
+     {buckets, count, "TVHT bucket processes (default: the scene's, else 64)"},
+     {schedulers, count, "schedulers online while the run lasts (lent by the VM; default: all)"},
+     {groups, boolean, "step bodies in persistent contact as one entity (default true)"},
+     {group_max, count, "the most bodies in one contact group (default 64)"},
+     {watchdog_ms, count, "how long GVT may stand still before the run restarts (default 10000)"},
+     {max_restarts, non_neg, "restarts after faults allowed within restart_period_ms (default 5)"},
+     {restart_period_ms, count, "the period of the restart budget (default 10000)"},
+     {checkpoint_ms, non_neg, "wall time between checkpoints (default 500)"},
+     {ring_size, count, "latest frames start/2 keeps readable (default 1024, at most 131072 body records)"},
+     {frames, path, "run/2: write the frames as JSON Lines to this file (\"-\": stdout)"},
+     {resume, boolean, "run/2: continue the interrupted run that wrote frames"},
+     {on_frame, callback, "run/2: fun(Frame) -> _, for every frame in order"},
+     {on_progress, callback, "run/2: fun(Stats) -> _, once per frame"}].
+
+-type kind() :: ms | count | non_neg | boolean | path | callback | {one_of, [atom()]}.
+
 -spec help() -> ok.
 help() ->
+    Options = [io_lib:format("    ~-18s ~ts [~ts]~n", [K, Doc, kind_text(Kind)]) || {K, Kind, Doc} <- options()],
     io:put_chars(
-      "rigidwarp shell API\n"
-      "  rigidwarp:run(SceneFile, Opts)  run a scene to the end, return a summary map\n"
-      "      Opts: engine => reference, until => Ms, substep => Ms, stride => Ms,\n"
-      "            frame_ms => Ms, integrator => verlet, ccd => true,\n"
-      "            frames => \"out.jsonl\", resume => true, on_frame => fun(Frame) -> _ end,\n"
-      "            max_restarts => N, restart_period_ms => Ms (the restart budget after faults)\n"
-      "  rigidwarp:load(SceneFile, Opts) validate a scene, return {ok, Scene} | {error, Message}\n"
-      "  rigidwarp:start(SceneFile, Opts) start a Time Warp run in the background: {ok, Sim}\n"
-      "  rigidwarp:frames(Sim)           the latest committed frame\n"
-      "  rigidwarp:frames(Sim, T)        the committed frame at T ms (while in the ring)\n"
-      "  rigidwarp:gvt(Sim)              Global Virtual Time (ms of the latest frame)\n"
-      "  rigidwarp:stats(Sim)            GVT, realtime factor, events, rollbacks, status, restarts\n"
-      "  rigidwarp:view(Sim)             serve the live 3D viewer: {ok, Url}\n"
-      "  rigidwarp:subscribe(Sim)        receive {rw_frame, _, Frame} for every new frame\n"
-      "  rigidwarp:await(Sim, TimeoutMs) wait for the run to reach its end time\n"
-      "  rigidwarp:stop(Sim)             stop it; no process or table is left behind\n"),
+      ["rigidwarp shell API\n"
+       "  rigidwarp:run(SceneFile, Opts)  run a scene to the end: {ok, Summary} | {error, Reason}\n"
+       "  rigidwarp:load(SceneFile, Opts) validate a scene: {ok, Scene} | {error, Message}\n"
+       "  rigidwarp:start(SceneFile, Opts) start a Time Warp run in the background: {ok, Sim}\n"
+       "  rigidwarp:frames(Sim)           the latest committed frame\n"
+       "  rigidwarp:frames(Sim, T)        the committed frame at T ms (while in the ring)\n"
+       "  rigidwarp:gvt(Sim)              Global Virtual Time (ms of the latest frame)\n"
+       "  rigidwarp:stats(Sim)            GVT, realtime factor, events, rollbacks, status, restarts\n"
+       "  rigidwarp:view(Sim)             serve the live 3D viewer: {ok, Url}\n"
+       "  rigidwarp:subscribe(Sim)        receive {rw_frame, _, Frame} for every new frame\n"
+       "  rigidwarp:await(Sim, TimeoutMs) wait for the run to reach its end time\n"
+       "  rigidwarp:stop(Sim)             stop it; no process or table is left behind\n"
+       "  Opts (a map; times in ms):\n", Options]),
     ok.
+
+kind_text(ms) -> "ms > 0";
+kind_text(count) -> "integer > 0";
+kind_text(non_neg) -> "integer >= 0";
+kind_text(boolean) -> "true | false";
+kind_text(path) -> "file name";
+kind_text(callback) -> "fun/1";
+kind_text({one_of, Atoms}) -> lists:join(" | ", [atom_to_list(A) || A <- Atoms]).
 
 %% Start a Time Warp run that goes on in the background. The caller is told
 %% {rw_done, _, EndMs} when it reaches the end, or {rw_crashed, _, Who,
@@ -380,36 +411,31 @@ check_file(File) when is_list(File); is_binary(File) ->
 check_file(_) -> false.
 
 check_options(Opts) when is_map(Opts) ->
-    Bad = [K || K <- maps:keys(Opts), not lists:member(K, ?OPTION_KEYS)],
-    case Bad of
-        [K | _] -> {error, lists:flatten(io_lib:format("unknown option ~p (known: ~p)", [K, ?OPTION_KEYS]))};
-        [] -> check_values(maps:to_list(Opts))
+    Table = options(),
+    case [K || K <- maps:keys(Opts), not lists:keymember(K, 1, Table)] of
+        [K | _] ->
+            {error, lists:flatten(io_lib:format("unknown option ~0p (known: ~s)",
+                                                [K, lists:join(", ", [atom_to_list(N) || {N, _, _} <- Table])]))};
+        [] ->
+            check_values([{K, V, element(2, lists:keyfind(K, 1, Table))} || {K, V} <- lists:sort(maps:to_list(Opts))])
     end;
 check_options(Opts) ->
-    {error, lists:flatten(io_lib:format("options must be a map, got ~p", [Opts]))}.
+    {error, lists:flatten(io_lib:format("options must be a map, got ~0P", [Opts, 8]))}.
 
 check_values([]) -> ok;
-check_values([{engine, E} | Rest]) when E =:= reference; E =:= timewarp -> check_values(Rest);
-check_values([{K, V} | Rest]) when (K =:= buckets orelse K =:= schedulers orelse K =:= watchdog_ms
-                                    orelse K =:= group_max orelse K =:= restart_period_ms orelse K =:= ring_size),
-                                   is_integer(V), V > 0, V =< 1 bsl 20 -> check_values(Rest);
-check_values([{K, V} | Rest]) when (K =:= until orelse K =:= substep orelse K =:= stride orelse
-                                    K =:= frame_ms), is_number(V), V > 0 -> check_values(Rest);
-check_values([{integrator, I} | Rest]) ->
-    case lists:member(I, rw_integrate:integrators()) of
+check_values([{K, V, Kind} | Rest]) ->
+    case valid(Kind, V) of
         true -> check_values(Rest);
-        false -> {error, lists:flatten(io_lib:format("bad value for option integrator: ~p (known: ~p)",
-                                                     [I, rw_integrate:integrators()]))}
-    end;
-check_values([{K, C} | Rest]) when (K =:= ccd orelse K =:= groups orelse K =:= resume), is_boolean(C) ->
-    check_values(Rest);
-check_values([{K, V} | Rest]) when (K =:= max_restarts orelse K =:= checkpoint_ms), is_integer(V), V >= 0,
-                                   V =< 1 bsl 30 -> check_values(Rest);
-check_values([{frames, F} | Rest]) when is_list(F); is_binary(F) -> check_values(Rest);
-check_values([{K, F} | Rest]) when (K =:= on_frame orelse K =:= on_progress), is_function(F, 1) ->
-    check_values(Rest);
-check_values([{K, V} | _]) ->
-    {error, lists:flatten(io_lib:format("bad value for option ~p: ~p", [K, V]))}.
+        false -> {error, lists:flatten(io_lib:format("bad value for option ~s: ~0P (~s)", [K, V, 8, kind_text(Kind)]))}
+    end.
+
+valid(ms, V) -> is_number(V) andalso V > 0;
+valid(count, V) -> is_integer(V) andalso V > 0 andalso V =< 1 bsl 20;
+valid(non_neg, V) -> is_integer(V) andalso V >= 0 andalso V =< 1 bsl 30;
+valid(boolean, V) -> is_boolean(V);
+valid(path, V) -> is_list(V) orelse is_binary(V);
+valid(callback, V) -> is_function(V, 1);
+valid({one_of, Atoms}, V) -> lists:member(V, Atoms).
 
 overrides(Opts) ->
     maps:from_list([{Scene, V} || {Opt, Scene} <- [{until, duration_ms}, {substep, substep_ms},
