@@ -11,12 +11,12 @@
 -include_lib("rigidwarp/include/rigidwarp.hrl").
 -include("rw_test.hrl").
 -export([all/0, suite/0, init_per_suite/1, end_per_suite/1]).
--export([random_kills_change_no_frame/1, past_the_budget_crashes_promptly/1, api_after_crash_and_stop/1,
-         schedulers_are_lent_not_taken/1]).
+-export([random_kills_change_no_frame/1, two_kills_at_once/1, past_the_budget_crashes_promptly/1,
+         api_after_crash_and_stop/1, schedulers_are_lent_not_taken/1]).
 
 suite() -> [{timetrap, {minutes, 10}}].
 
-all() -> [random_kills_change_no_frame, past_the_budget_crashes_promptly, api_after_crash_and_stop,
+all() -> [random_kills_change_no_frame, two_kills_at_once, past_the_budget_crashes_promptly, api_after_crash_and_stop,
           schedulers_are_lent_not_taken].
 
 %% Contact-heavy scenes, each over a part where contacts go on all along.
@@ -132,6 +132,22 @@ no_leak(Tries) ->
     end.
 
 %%% Examples
+
+%% A shrunk counterexample, kept: two bodies killed one right after the
+%% other, checkpoints every 6 ms. The second restart began before the first
+%% restarted simulation's frames had reached the ring's latest frame: the
+%% ring, writing them again, pushed that later frame out with the records
+%% the restarted bodies had just committed at its time, and the GVT process
+%% crashed planning groups from them.
+two_kills_at_once(Config) ->
+    {Scene, Reference} = maps:get("bouncing_50_250", ?config(scenes, Config)),
+    [begin
+         {Result, Frames, _} = run_with_kills(Scene, [{1, body, 1}, {0, body, 1}], 6),
+         ?assertMatch({ok, _}, Result),
+         ?assertBitwise(Reference, Frames)
+     end || _ <- lists:seq(1, 5)],
+    ?assert(no_leak()),
+    ok.
 
 %% With no restarts left, any fault ends the run at once: the caller of
 %% run/2 and of await/2 gets {crashed, Who, Reason} within a second, stats/1

@@ -14,7 +14,7 @@
 %% (rw_run owns them), so a simulation restarted from a checkpoint writes
 %% frames that are there already: they are the same frames, and stay.
 -module(rw_ring).
--export([init/3, write/4, latest/1, frame_at/2, frames_after/3, ticks/1]).
+-export([init/3, write/4, latest/1, frame_at/2, frames_after/3, ticks/1, truncate/2]).
 
 %% A ring over the records table Records of a simulation of N bodies.
 -spec init(ets:tid(), ets:tid(), pos_integer()) -> ok.
@@ -49,6 +49,23 @@ add(Ring, Ms, Tick, Size) ->
                  _ -> Ms
              end,
     true = ets:insert(Ring, [{{t, Ms}, Tick}, {{slot, K rem Size}, Ms}, {count, K + 1}, {latest, Latest}]),
+    ok.
+
+%% Drop the frames at From (ticks) and later: a simulation restarted from
+%% a checkpoint at From commits them again, and a frame it writes must only
+%% ever push older frames out of the ring (never one whose records the
+%% restarted bodies have committed anew). The frames kept take the first
+%% slots again, oldest first.
+-spec truncate(ets:tid(), non_neg_integer()) -> ok.
+truncate(Ring, From) ->
+    Kept = lists:sort([{Ms, Tick} || [Ms, Tick] <- ets:match(Ring, {{t, '$1'}, '$2'}), Tick < From]),
+    _ = ets:match_delete(Ring, {{t, '_'}, '_'}),
+    _ = ets:match_delete(Ring, {{slot, '_'}, '_'}),
+    true = ets:delete(Ring, latest),
+    Slots = lists:zip(lists:seq(0, length(Kept) - 1), Kept),
+    true = ets:insert(Ring, [{count, length(Kept)} | [{{t, Ms}, Tick} || {Ms, Tick} <- Kept]]
+                              ++ [{{slot, K}, Ms} || {K, {Ms, _}} <- Slots]
+                              ++ [{latest, Ms} || {Ms, _} <- lists:nthtail(max(0, length(Kept) - 1), Kept)]),
     ok.
 
 %% The frame times the ring holds, in ticks.

@@ -274,6 +274,7 @@ fault(Who, Reason, #r{opts = Opts} = R0) ->
             logger:warning("rigidwarp: ~ts: ~ts; restarting from the checkpoint at ~p ms (restart ~b of at most ~b "
                            "in ~b ms)", [R#r.scene#scene.name, describe(Who, Reason), From, length(Recent) + 1, Max,
                                          Period]),
+            ok = rw_ring:truncate(R#r.ring, restart_tick(R)),
             ok = rw_commits:keep_only(R#r.records, rw_ring:ticks(R#r.ring)),
             R1 = R#r{restarts = [Now | Recent], restarted = R#r.restarted + 1},
             case incarnate(R1) of
@@ -283,6 +284,10 @@ fault(Who, Reason, #r{opts = Opts} = R0) ->
         false ->
             crashed(Who, Reason, R)
     end.
+
+%% Where a restart starts: the latest checkpoint, else the run's start.
+restart_tick(#r{checkpoint = {checkpoint, T, _, _}}) -> T;
+restart_tick(#r{scene = #scene{start = Start}}) -> Start.
 
 crashed(Who, Reason, R) ->
     logger:error("rigidwarp: ~ts: ~ts; past the restart budget after ~b restarts, the run has crashed at GVT ~p ms",

@@ -1,0 +1,54 @@
+%% The frame ring across a restart: frames at and after the restart point
+%% leave the ring, so that the restarted simulation, writing its frames
+%% again from there, only ever pushes older frames (and their records) out.
+-module(rw_ring_tests).
+-include_lib("eunit/include/eunit.hrl").
+
+%% A ring of Size over a records table, with frames at Ticks (ms = ticks),
+%% each with one body's record.
+ring(Size, Ticks) ->
+    Ring = ets:new(ring, [set, public]),
+    Records = ets:new(records, [ordered_set, public]),
+    ok = rw_ring:init(Ring, Records, 1),
+    [begin
+         commit(Records, T),
+         ok = rw_ring:write(Ring, T, T, Size)
+     end || T <- Ticks],
+    {Ring, Records}.
+
+commit(Records, T) ->
+    true = ets:insert(Records, {{T, 0}, {<<"a">>, {float(T), 0.0, 0.0}, {0.0, 0.0, 0.0}, undefined, undefined},
+                                {{0.0, 0.0, 0.0}, undefined}}).
+
+restart_keeps_recommitted_records_test() ->
+    {Ring, Records} = ring(1, [0, 10, 20, 30]),
+    %% a restart from the checkpoint at 10: the restarted bodies commit 10,
+    %% 20 and 30 again before GVT writes 10 into the ring
+    ok = rw_ring:truncate(Ring, 10),
+    ok = rw_commits:keep_only(Records, rw_ring:ticks(Ring)),
+    [commit(Records, T) || T <- [10, 20, 30]],
+    [begin ok = rw_ring:write(Ring, T, T, 1), ?assertMatch({frame, T, [_]}, rw_ring:frame_at(Ring, T)) end
+     || T <- [10, 20, 30]],
+    ?assertMatch({frame, 30, [_]}, rw_ring:latest(Ring)),
+    ?assertEqual([{30, 0}], [K || {K, _, _} <- ets:tab2list(Records)]).
+
+truncate_keeps_older_frames_in_order_test() ->
+    {Ring, Records} = ring(3, [0, 10, 20, 30, 40]),
+    ?assertEqual([20, 30, 40], lists:sort(rw_ring:ticks(Ring))),
+    ok = rw_ring:truncate(Ring, 35),
+    ok = rw_commits:keep_only(Records, rw_ring:ticks(Ring)),
+    ?assertMatch({frame, 30, _}, rw_ring:latest(Ring)),
+    [commit(Records, T) || T <- [40, 50]],
+    ok = rw_ring:write(Ring, 40, 40, 3),
+    ok = rw_ring:write(Ring, 50, 50, 3),
+    %% the oldest (20) went, in slot order
+    ?assertEqual([30, 40, 50], lists:sort(rw_ring:ticks(Ring))),
+    ?assertEqual([30, 40, 50], [T || {{T, 0}, _, _} <- ets:tab2list(Records)]),
+    ?assertEqual([{frame, T, [B]} || T <- [40, 50], [{_, B, _}] <- [ets:lookup(Records, {T, 0})]],
+                 rw_ring:frames_after(Ring, 30, 10)).
+
+truncate_to_nothing_test() ->
+    {Ring, _Records} = ring(4, [0, 10]),
+    ok = rw_ring:truncate(Ring, 0),
+    ?assertEqual(none, rw_ring:latest(Ring)),
+    ?assertEqual([], rw_ring:ticks(Ring)).
