@@ -397,7 +397,9 @@ summary(#scene{name = Name, substep = Dt, stride = Stride, spheres = Spheres} = 
     StartMs = case From of fresh -> 0; {checkpoint, _, Ms, _} -> Ms end,
     SimMs = rw_scene:duration_ms(Scene) - StartMs,
     Resumed = case From of fresh -> #{}; _ -> #{resumed_from_ms => StartMs} end,
-    maps:merge(maps:without([status], Stats),
+    %% the run's progress figures (status, GVT, start and end, the lead)
+    %% say nothing once it has ended
+    maps:merge(maps:without([status, gvt, start_ms, end_ms, max_lvt], Stats),
                Resumed#{scene => Name, engine => Engine, bodies => length(Spheres),
                         substep_ms => rw_scene:ms(Scene, Dt), stride_ms => rw_scene:ms(Scene, Stride),
                         sim_ms => SimMs, wall_ms => round(WallMs), realtime_factor => SimMs / max(WallMs, 0.001)}).
