@@ -43,7 +43,7 @@
 -type move() :: #{send => [{non_neg_integer(), non_neg_integer(), pid()}],
                   expect => #{non_neg_integer() => [non_neg_integer()]},
                   gather => [non_neg_integer()]}.
-%% Pairs of bodies {A, B}, A < B.
+%% Pairs of bodies {A, B}, A less than B.
 -type pairs() :: #{{non_neg_integer(), non_neg_integer()} => true}.
 
 -define(NEAR, 1.25).

@@ -25,9 +25,10 @@
 -type span(K) :: {Lo :: float(), K, Hi :: float()}.
 %% What the sweep returns for spheres A and B (D their distance, Sum the
 %% sum of their radii):
-%%   {distance, F}  {{A, B}, D, Sum} where D < F x Sum
-%%   {skin, Skin}   {A, B} where D^2 < (Sum + Skin)^2, without a square root
-%% and, for spans, `spans`: {A, B} where they overlap.
+%%   {distance, F}  {{A, B}, D, Sum} where D is less than F x Sum
+%%   {skin, Skin}   {A, B} where D^2 is less than (Sum + Skin)^2, without a
+%%                  square root
+%% and, for spans, the atom spans: {A, B} where they overlap.
 -type test() :: {distance, float()} | {skin, float()} | spans.
 
 %% The pairs that pass Test, each once with the lower key first. Keys are
