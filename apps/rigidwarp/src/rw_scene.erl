@@ -200,11 +200,9 @@ build(Map, Overrides, File) ->
                    {ok, _} -> positive(Map, <<"cell_size">>, []);
                    %% 5 radii: a sphere's box mostly stays in one cell
                    %% for a whole step (one run per write, less hashing and
-                   %% bucket work) while a cell still holds few bodies.
-                   %% Measured on the paper scenes (2 schedulers, 2 s):
-                   %% Cylinders 500 and Bouncing 500 ~25 % faster than
-                   %% at 3 radii, the rest equal or faster; 6-10 radii
-                   %% no better
+                   %% bucket work) while a cell still holds few bodies;
+                   %% smaller cells put a step over more cells, larger
+                   %% ones put more bodies in each
                    error -> 5.0 * MaxR
                end,
     no_overlaps(Spheres, Fixtures, CellSize),

@@ -88,9 +88,9 @@ overlapping(_, _Hi, _KA, Acc) -> Acc.
 %% of the grid of side CellSize (rw_hash:cells/2), once, as {A, B} with
 %% A < B. The order is fixed by the boxes: cell by cell in the order of the
 %% cells in a map, each pair where it first appears. (Boxes are asked for
-%% one at a time rather than given as a list: a reference run, whose
-%% substeps are mostly this, took 8-10 % longer with a list of boxes to
-%% collect at every substep.)
+%% one at a time rather than given as a list: the reference engine calls
+%% this at every substep, and a list would be built and collected each
+%% time.)
 -spec grid(non_neg_integer(), fun((pos_integer()) -> rw_shape:aabb()), float()) -> [{pos_integer(), pos_integer()}].
 grid(N, BoxOf, CellSize) ->
     {_, Pairs} = maps:fold(fun(_, [_], Acc) -> Acc;
