@@ -10,7 +10,7 @@ ESCRIPT = _build/default/bin/rigidwarp
 # The benchmarks and the shell run in rebar3's VM, so they get them here.
 VM_FLAGS = +sbtu +MMscs 1024 +MMsco false
 
-.PHONY: all deps build test viewer-test bench accuracy run shell clean
+.PHONY: all deps build test docs viewer-test bench accuracy run shell clean
 
 all: build
 
@@ -21,9 +21,14 @@ deps:
 build: deps
 	$(REBAR) escriptize
 
-# eunit + PropEr + common_test + xref + module graph + dialyzer, then one closing count line.
+# eunit + PropEr + common_test + xref + module graph + API docs + dialyzer, then one closing count line.
 test: build
 	@scripts/run-tests
+
+# API docs (edoc): apps/rigidwarp/doc/index.html (rigidwarp, the shell API;
+# rw_scene and rw_frames, the file formats) and apps/rw_physics/doc/.
+docs: deps
+	$(REBAR) edoc
 
 # The browser viewer in headless chromium (installs chromium and npm packages).
 viewer-test: build
@@ -59,4 +64,4 @@ shell: build
 
 clean:
 	$(REBAR) clean -a
-	rm -rf _build/test/logs
+	rm -rf _build/test/logs apps/*/doc

@@ -1,7 +1,39 @@
-%% The shell API of rigidwarp.
+%% @doc The shell API of rigidwarp: validate a scene, run it to its end on
+%% the parallel Time Warp engine (the default) or on the sequential
+%% reference engine, or start a Time Warp run in the background and read
+%% its committed frames, counters and live 3D view while it goes on.
 %%
-%%   1> rigidwarp:run("scenarios/head_on_elastic.json", #{engine => reference}).
-%%   {ok, #{scene => <<"head_on_elastic">>, realtime_factor => ..., ...}}
+%% Scenes are JSON files ({@link rw_scene} describes them). A frame is
+%% `{frame, T, Bodies}': T in ms and, for each dynamic body sorted by id,
+%% `{Id, Position, Velocity, Orientation, AngularVelocity}', the last two
+%% `undefined' without rotation. Files of frames are JSON Lines
+%% ({@link rw_frames}). Options are a map with times in ms
+%% ({@link run_options()}); `rigidwarp:help()' lists every option with
+%% its values and default. Every function checks its arguments as the
+%% escript checks its flags: a bad file name, option or handle gives
+%% `{error, Message}' and starts nothing.
+%%
+%% ```
+%% 1> rigidwarp:run("scenarios/head_on_elastic.json", #{engine => reference}).
+%% {ok,#{bodies => 2,engine => reference,frames => 101,realtime_factor => 262.5,
+%%       scene => <<"head_on_elastic">>,sim_ms => 1000,wall_ms => 4,...}}
+%% 2> {ok, Sim} = rigidwarp:start("scenarios/bouncing_200_250.json", #{until => 500}).
+%% 3> rigidwarp:view(Sim).
+%% {ok,"http://127.0.0.1:8765/"}
+%% 4> rigidwarp:await(Sim, 60000).
+%% ok
+%% 5> rigidwarp:stats(Sim).
+%% #{gvt => 500,efficiency => 0.942,rollbacks => 129,status => done,...}
+%% 6> {frame, 500, [{<<"s000">>, P, V, undefined, undefined} | _]} = rigidwarp:frames(Sim).
+%% 7> rigidwarp:stop(Sim).
+%% ok
+%% '''
+%%
+%% The application's environment holds the defaults a site may change
+%% (`config/sys.config', or `application:set_env/3' before the call):
+%% `viewer_port', the port of view/1 (8765), and `ring_frames', the most
+%% frames a started run keeps readable (1024). The application's other
+%% modules are internal.
 -module(rigidwarp).
 -include("rigidwarp.hrl").
 -export([run/2, run_scene/2, load/2, help/0, options/0, start/2, stop/1, frames/1, frames/2, frames_after/3,
@@ -24,10 +56,19 @@
                          frames => file:filename(), resume => boolean(),
                          on_frame => fun((rw_reference:frame()) -> any()),
                          on_progress => fun((map()) -> any())}.
+%% The options of run/2 and start/2, times in ms; help/0 lists each with
+%% the values it takes and its default. Left out, a time is the scene's.
 -type summary() :: #{atom() => term()}.
+%% What run/2 returns at the end: the scene, the engine, the body count,
+%% sim_ms and wall_ms, realtime_factor, frames, and the engine's counters
+%% (events, rollbacks, efficiency... for timewarp).
 -type error_reason() :: string() | {crashed, rw_run:who(), term()} | {interrupted, atom(), number() | undefined}.
-%% A running Time Warp simulation (from start/2).
+%% Why run/2 stopped early: a message, a crash past the restart budget, or
+%% an interruption ({rw_interrupt, Signal} sent to the process running it)
+%% at the last frame's time in ms (undefined before the first frame).
+%% format_error/1 makes any of them one line.
 -opaque sim() :: rw_timewarp:handle().
+%% A running Time Warp simulation (from start/2).
 -export_type([sim/0]).
 
 %% The options the Time Warp engine itself takes.
@@ -37,9 +78,9 @@
 %% the handle (frames/1, subscribe/1), not to a file or a callback.
 -define(RUN_ONLY_KEYS, [frames, resume, on_frame, on_progress]).
 
-%% Every option of run/2 and start/2: its name, the values it takes (which
-%% check_values/1 checks) and what it does; help/0 prints this table, so
-%% the two cannot drift apart.
+%% @doc Every option of run/2 and start/2: its name, the values it takes
+%% and what it does. help/0 prints this table and load/2 checks options
+%% against it, so the two cannot drift apart.
 -spec options() -> [{atom(), kind(), string()}].
 options() ->
     [{engine, {one_of, [timewarp, reference]}, "timewarp (parallel, default) or reference (sequential; run/2 only)"},
@@ -64,7 +105,11 @@ options() ->
      {on_progress, callback, "run/2: fun(Stats) -> _, once per frame"}].
 
 -type kind() :: ms | count | non_neg | boolean | path | callback | {one_of, [atom()]}.
+%% The values an option takes: ms is a number above 0, count an integer
+%% above 0, non_neg an integer from 0, path a file name, callback a fun of
+%% one argument.
 
+%% @doc Print the API and every option with its values and default.
 -spec help() -> ok.
 help() ->
     Options = [io_lib:format("    ~-18s ~ts [~ts]~n", [K, Doc, kind_text(Kind)]) || {K, Kind, Doc} <- options()],
@@ -92,10 +137,12 @@ kind_text(path) -> "file name";
 kind_text(callback) -> "fun/1";
 kind_text({one_of, Atoms}) -> lists:join(" | ", [atom_to_list(A) || A <- Atoms]).
 
-%% Start a Time Warp run that goes on in the background. The caller is told
-%% {rw_done, _, EndMs} when it reaches the end, or {rw_crashed, _, Who,
-%% Reason} when faults have spent its restart budget; frames stay readable
-%% until stop/1.
+%% @doc Start a Time Warp run that goes on in the background. The caller
+%% is told `{rw_done, _, EndMs}' when it reaches the end, or
+%% `{rw_crashed, _, Who, Reason}' when faults have spent its restart
+%% budget; frames stay readable until stop/1. It takes the options of
+%% run/2 but frames, resume, on_frame and on_progress: a started run gives
+%% its frames through frames/1,2 and subscribe/1.
 -spec start(file:filename(), run_options()) -> {ok, sim()} | {error, string()}.
 start(File, Opts) when is_map(Opts) ->
     case [K || K <- ?RUN_ONLY_KEYS, is_map_key(K, Opts)] of
@@ -120,12 +167,17 @@ start(File, Opts) when is_map(Opts) ->
 start(_File, Opts) ->
     {error, lists:flatten(io_lib:format("options must be a map, got ~0p", [Opts]))}.
 
+%% @doc Stop a simulation: no process or table of it is left behind.
 -spec stop(sim()) -> ok | {error, string()}.
 stop(Sim) -> with_sim(Sim, fun rw_timewarp:stop/1).
 
+%% @doc The latest committed frame, or none before the first.
 -spec frames(sim()) -> rw_reference:frame() | none | {error, string()}.
 frames(Sim) -> frames(Sim, latest).
 
+%% @doc The committed frame at T ms (or the latest), while the frame ring
+%% still holds it (the latest ring_size frames: help/0 gives the default);
+%% none otherwise.
 -spec frames(sim(), latest | number()) -> rw_reference:frame() | none | {error, string()}.
 frames(Sim, T) ->
     with_sim(Sim, fun({rw_sim, _, Ring}) ->
@@ -137,7 +189,8 @@ frames(Sim, T) ->
                           end
                   end).
 
-%% Up to Max committed frames after T ms that are still in the ring.
+%% @doc Up to Max committed frames after T ms that are still in the ring,
+%% oldest first.
 -spec frames_after(sim(), number(), pos_integer()) -> [rw_reference:frame()] | {error, string()}.
 frames_after(Sim, T, Max) when is_number(T), is_integer(Max), Max > 0 ->
     with_sim(Sim, fun({rw_sim, _, Ring}) -> rw_ring:frames_after(Ring, T, Max) end);
@@ -147,16 +200,20 @@ frames_after(Sim, T, Max) ->
                                                               "got ~0p, ~0p", [T, Max]))}
                   end).
 
-%% Counters of a simulation so far: only what has been committed, and its
-%% wall time stops at the end; status is running, done or crashed.
+%% @doc Counters of a simulation so far: GVT, realtime factor, events,
+%% rollbacks, efficiency, restarts. They count committed work only (up to
+%% GVT), and stop changing at the end; status is running, done or crashed.
 -spec stats(sim()) -> map() | {error, string()}.
 stats(Sim) -> with_sim(Sim, fun rw_timewarp:stats/1).
 
-%% Serve the live viewer for Sim on 127.0.0.1 (port 8765 unless Opts say
-%% otherwise); open the returned URL in a browser.
+%% @doc Serve the live viewer for Sim on 127.0.0.1, on the port of the
+%% application's viewer_port (8765 by default); open the returned URL in a
+%% browser.
 -spec view(sim()) -> {ok, string()} | {error, string()}.
 view(Sim) -> view(Sim, #{}).
 
+%% @doc Serve the live viewer for Sim on the port Opts give (0 picks a free
+%% one).
 -spec view(sim(), #{port => inet:port_number()}) -> {ok, string()} | {error, string()}.
 view(Sim, #{} = Opts) ->
     with_sim(Sim, fun(_) ->
@@ -172,16 +229,19 @@ view(Sim, Opts) ->
                                                               [Opts]))}
                   end).
 
+%% @doc Global Virtual Time in ms: the time of the latest committed frame
+%% (-1 before the first).
 -spec gvt(sim()) -> number() | {error, string()}.
 gvt(Sim) -> with_sim(Sim, fun({rw_sim, Run, _}) -> rw_run:gvt(Run) end).
 
-%% From now on, receive {rw_frame, _, Frame} for every new frame, in order
-%% and once, however often the simulation restarts after faults.
+%% @doc From now on, receive `{rw_frame, _, Frame}' for every new frame, in
+%% order and once, however often the simulation restarts after faults.
 -spec subscribe(sim()) -> ok | {error, string()}.
 subscribe(Sim) -> with_sim(Sim, fun({rw_sim, Run, _}) -> rw_run:subscribe(Run, self(), frames, false) end).
 
-%% Wait until the run reaches its end time (ok), the timeout passes, or
-%% faults spend its restart budget ({error, {crashed, Who, Reason}}).
+%% @doc Wait until the run reaches its end time (ok), the timeout in ms
+%% passes (timeout), or faults spend its restart budget
+%% (`{error, {crashed, Who, Reason}}').
 -spec await(sim(), timeout()) -> ok | timeout | {error, string() | {crashed, rw_run:who(), term()}}.
 await(Sim, Timeout) when Timeout =:= infinity; is_integer(Timeout), Timeout >= 0 ->
     with_sim(Sim, fun(H) -> await_end(H, Timeout) end);
@@ -225,7 +285,9 @@ with_sim(Other, _Fun) ->
 
 stopped() -> {error, "the simulation has been stopped"}.
 
-%% Load and validate a scene with the overrides in Opts.
+%% @doc Load and validate a scene with the overrides in Opts (until,
+%% substep, stride, frame_ms, integrator, ccd) and check the other options.
+%% The error is one line naming the file, the JSON path and the problem.
 -spec load(file:filename(), run_options()) -> {ok, #scene{}} | {error, string()}.
 load(File, Opts) ->
     case check_file(File) andalso check_options(Opts) of
@@ -240,9 +302,10 @@ load(File, Opts) ->
             Error
     end.
 
-%% Run a scene to its end. With frames => File, the frames go to File
-%% (a regular file is written as File.part with a checkpoint beside it and
-%% renamed at the end); resume => true continues an interrupted run of
+%% @doc Run a scene to its end. With `frames => File' the frames go to File
+%% as JSON Lines ("-" is stdout; a regular file is written as File.part,
+%% with a checkpoint beside it, and renamed at the end; FIFOs and devices
+%% are written in place); `resume => true' continues an interrupted run of
 %% the same scene and options from its latest checkpoint. Whatever
 %% happens, nothing of the run is left behind but the frames so far.
 -spec run(file:filename(), run_options()) -> {ok, summary()} | {error, error_reason()}.
@@ -252,7 +315,7 @@ run(File, Opts) ->
         {error, _} = Error -> Error
     end.
 
-%% Run a scene that load/2 returned.
+%% @doc Run a scene that load/2 returned, as run/2 does.
 -spec run_scene(#scene{}, run_options()) -> {ok, summary()} | {error, error_reason()}.
 run_scene(Scene, Opts) ->
     Engine = maps:get(engine, Opts, timewarp),
@@ -281,7 +344,7 @@ run_scene(Scene, Opts) ->
             Error
     end.
 
-%% One line for any error of run/2 and run_scene/2.
+%% @doc One line for any error of run/2 and run_scene/2.
 -spec format_error(error_reason()) -> string().
 format_error({crashed, Who, Reason}) ->
     lists:flatten(io_lib:format("the simulation crashed past its restart budget: ~0p died: ~0P", [Who, Reason, 12]));

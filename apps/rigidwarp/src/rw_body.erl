@@ -24,12 +24,10 @@
 -export_type([data/0]).
 
 %% A body's heap never shrinks below this many words (138 KiB): a step
-%% allocates some 130 words per substep and keeps little, and a heap sized
-%% to what survived the last collection collected every few dozen
-%% substeps. On Cylinders 500 (one scheduler, 5 pairs run side by side)
-%% this took 8.5 % less CPU, on Parallel 500 6 %; heaps of 28657 words
-%% were no better within the noise, and of 46368 (362 KiB, more than
-%% the cores' caches hold) made the scene a third slower.
+%% allocates some 130 words per substep and keeps little, so a heap sized
+%% to what survived the last collection would collect every few dozen
+%% substeps. A larger heap saves no more collections, and a few hundred
+%% KiB per body is more than the cores' caches hold.
 -define(BODY_HEAP, 17711).
 %% ... but all bodies' minimum heaps together at most this many words
 %% (128 MiB): 1000 bodies and more get smaller ones.

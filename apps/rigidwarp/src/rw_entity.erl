@@ -168,9 +168,8 @@
 %% A group steps at most this many body-substeps per write (16 substeps
 %% for 64 members; a body alone, a stride): a write it has to truncate at
 %% a contact, or that a regroup or an event rolls back, wastes every
-%% member's substeps after it. On Cylinders 500 (first 2 s) efficiency
-%% rose from 0.81 to 0.87 and reductions fell 3 %; 256 wrote so often
-%% that it cost more than it saved.
+%% member's substeps after it. A budget much smaller writes so often that
+%% the writes cost more than the waste they spare.
 -define(WRITE_BUDGET, 1024).
 
 %% An entity for body Sphere of Scene, starting from St0 at the calendar's start, whose
@@ -345,9 +344,9 @@ step(Gvt0, Lvts, E0) ->
 
 %% The shortest step a body takes once it has passed the next sync point:
 %% three quarters of a stride. A write costs about the same however many
-%% substeps it holds; half a stride made Parallel 500 write 36 substeps at a
-%% time and run 10-15 % slower, a whole stride (GVT must reach the body's
-%% LVT first) made bodies in contact wait.
+%% substeps it holds, so shorter steps pay for more writes; a whole stride
+%% would make bodies in contact wait (GVT must reach the body's LVT
+%% first).
 min_step(#e{conf = #conf{stride = S, dt = Dt}}) -> max(Dt, (S * 3 div 4) div Dt * Dt).
 
 %% Integrate from LVT to Last assuming no new contacts, and write.

@@ -40,8 +40,8 @@
     gvt = -1 :: integer(),                   % last sync point passed
     complete = #{} :: #{non_neg_integer() => true},
     %% the entities to wake when GVT reaches each time, ascending (a few
-    %% distinct times, each with up to every body: a set of {At, Pid} cost
-    %% the GVT process a third of its time on Parallel 500)
+    %% distinct times, each with up to every body: a list per time, where a
+    %% set of {At, Pid} would hold an element per body)
     waiting = [] :: [{integer(), [pid()]}],
     ring_size :: pos_integer(),
     checkpoint_ms :: non_neg_integer(),
@@ -87,10 +87,10 @@ init({#sim{scene = #scene{spheres = Spheres}, n = N, records = Records, ring = R
            grouping = Mode} = Sim, Opts}) ->
     %% Each advance brings the records of a frame or more onto this heap
     %% (held until GVT is published, for the regroup plan), and a heap
-    %% sized to what survived the last collection fills with them at once:
-    %% with room for the records of about 40 frames, this process was
-    %% scheduled in 27 % less of a Cylinders 500 run (0.7 s, not 1.0 s).
-    %% (at most 2M words, 16 MiB: 4M made Cylinders 500 slower than 1M)
+    %% sized to what survived the last collection would fill with them at
+    %% once and collect at every advance: room for the records of about 40
+    %% frames, at most 2M words (16 MiB), past which a heap costs more in
+    %% cache misses than it saves in collections.
     _ = process_flag(min_heap_size, min(2048 * N, 1 bsl 21)),
     ok = rw_ring:init(Ring, Records, N),
     Idxs = lists:sort([I || #sphere{idx = I} <- Spheres]),

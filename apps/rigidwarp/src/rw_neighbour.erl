@@ -7,8 +7,8 @@
 %% A partner counts as in persistent contact for a few substeps after its
 %% second touch within as many substeps: a single touch is most often a
 %% bounce, after which the two fly apart, and holding both to one substep
-%% per write for the next few substeps made Bouncing 500 write 2.6 times as
-%% often (most writes one substep long) for no fewer rollbacks. Touches are
+%% per write for the next few substeps would multiply their writes (most
+%% one substep long) without sparing a rollback. Touches are
 %% remembered by partner (the latest two substeps); one undone by a
 %% rollback may hold the entity back a little longer than needed, never
 %% less.
@@ -20,10 +20,9 @@
 -export_type([touched/0]).
 
 -define(RECENT_SUBSTEPS, 8).
-%% A bounce in a gas of spheres lasts one to three substeps: at 4 Bouncing
-%% 500 regroups a few times per run, at 2 hundreds of times (and runs 25 %
-%% slower), while Cylinders 500 is as fast at 4 as at 2 and 10 % slower
-%% at 8.
+%% A bounce in a gas of spheres lasts one to three substeps, so 4 substeps
+%% of touching mean a lasting contact: fewer would group bouncing spheres
+%% and regroup them over and over, more would group resting bodies later.
 -define(MET, 4).
 
 %% Per outside body: the latest two substeps at which a member touched it

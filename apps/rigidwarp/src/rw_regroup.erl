@@ -12,8 +12,8 @@
 %%           radii: resting, rolling or pressing on each other, or bouncing
 %%           on each other again and again as Cylinders' layers do when they
 %%           land; a bounce in a gas of spheres is over in a few substeps and
-%%           joins nothing (grouping every pair near each other made
-%%           Bouncing 500 1.8 times as slow, with 90 times as many regroups);
+%%           joins nothing (grouping every pair near each other would
+%%           regroup a gas at every regroup point, for nothing);
 %%   stay  - already share a group and are closer than 1.25 x the sum of
 %%           their radii, however they move (hysteresis: a group does not
 %%           split and re-form at every jostle);
@@ -43,7 +43,7 @@
 -type move() :: #{send => [{non_neg_integer(), non_neg_integer(), pid()}],
                   expect => #{non_neg_integer() => [non_neg_integer()]},
                   gather => [non_neg_integer()]}.
-%% Pairs of bodies {A, B}, A < B.
+%% Pairs of bodies {A, B}, A less than B.
 -type pairs() :: #{{non_neg_integer(), non_neg_integer()} => true}.
 
 -define(NEAR, 1.25).

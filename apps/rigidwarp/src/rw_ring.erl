@@ -2,9 +2,9 @@
 %% that the GVT process writes and anyone reads (the shell API, the viewer)
 %% without asking a process. The ring names the frame times it holds; their
 %% records stay where the bodies committed them (rw_commits) until the
-%% frame leaves the ring, and readers select them from there (a copy out
-%% of the records table and one into the ring took the GVT process a third
-%% of its time on Parallel 500).
+%% frame leaves the ring, and readers select them from there: copying
+%% every frame's records out of the records table and into the ring would
+%% be a large share of the GVT process's work, which every body waits on.
 %%
 %% Keys: {t, Ms} => Tick for each frame held (its time in ms, an integer
 %% when whole, rw_scene:whole_ms/1, and in ticks); {slot, K} => Ms for the

@@ -132,12 +132,23 @@ init({Scene, Opts}) ->
             {stop, {schedulers, Message}}
     end.
 
-%% The frames the ring keeps unless asked otherwise: the latest 1024, or
-%% fewer (but 16 at least) for scenes of more than 128 bodies, so that the
-%% ring holds at most 2^17 body records (430-710 bytes each: 55-90 MB).
+%% The frames the ring keeps unless asked otherwise: the latest
+%% ring_frames (the application's environment, 1024 by default), or fewer
+%% (but 16 at least) for scenes of many bodies, so that the ring holds at
+%% most 2^17 body records (430-710 bytes each: 55-90 MB).
 -define(RING_RECORDS, 1 bsl 17).
+-define(DEFAULT_RING_FRAMES, 1024).
 
-ring_size(#scene{spheres = Spheres}) -> max(16, min(1024, ?RING_RECORDS div max(1, length(Spheres)))).
+ring_size(#scene{spheres = Spheres}) -> max(16, min(ring_frames(), ?RING_RECORDS div max(1, length(Spheres)))).
+
+ring_frames() ->
+    case application:get_env(rigidwarp, ring_frames, ?DEFAULT_RING_FRAMES) of
+        N when is_integer(N), N > 0 -> N;
+        Bad ->
+            logger:warning("rigidwarp: ring_frames must be a positive integer, got ~0p; ~b frames kept",
+                           [Bad, ?DEFAULT_RING_FRAMES]),
+            ?DEFAULT_RING_FRAMES
+    end.
 
 schedulers(#{schedulers := N}) -> rw_schedulers:acquire(N);
 schedulers(_) -> ok.

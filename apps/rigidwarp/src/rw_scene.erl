@@ -1,6 +1,45 @@
-%% Scene files: JSON in, a validated #scene{} out. Every error names the
-%% file, the JSON path of the offending field and what is wrong with it.
-%% Nothing is started before a scene validates.
+%% @doc Scene files: JSON in, a validated `#scene{}' out. Every error names
+%% the file, the JSON path of the offending field and what is wrong with
+%% it. Nothing is started before a scene validates.
+%%
+%% A scene is one JSON object:
+%% <ul>
+%% <li>`name' (required), `description';</li>
+%% <li>`duration_ms' (required), `substep_ms' (default 1), `stride_ms'
+%%     (LVT_ub - GVT, default 64 substeps), `frame_ms' (the time between
+%%     frames, default 10 substeps): ms in whole microseconds (0.5 is a
+%%     substep), each a multiple of the substep;</li>
+%% <li>`model': `gravity' [x, y, z] (left out: none), `restitution' in
+%%     [0, 1] (default 1), `friction' (left out: frictionless), `rotation'
+%%     (default false), `integrator' (`"symplectic_euler"' by default,
+%%     `"verlet"' or `"explicit_euler"'), `ccd' (swept tests, default
+%%     false), `rest_speed', `correction' (default 0.2) and `slop'
+%%     (default 0);</li>
+%% <li>`bodies', each with a unique `id' and a `shape' (`static' is
+%%     optional: spheres move, the other shapes do not): a dynamic
+%%     `"sphere"' (`radius', `mass', `position', `velocity',
+%%     `angular_velocity' with rotation) or a static `"cylinder"'
+%%     (`radius', `half_length', `axis', `position'), `"plane"' (`normal',
+%%     `offset': the solid side is where normal.x is less than offset) or
+%%     `"box"' (`half_extents', `position', `hollow': a container);</li>
+%% <li>`generators' of spheres: `"grid"' (`count' [nx, ny, nz], `origin',
+%%     `spacing') and `"random"' (`count', `seed', the region `min' and
+%%     `max', `speed'), each with `id_prefix', `radius', `mass' and
+%%     `velocity';</li>
+%% <li>`cell_size' (the hash cell edge, default 5 times the largest radius)
+%%     and `buckets' (bucket processes, default 64).</li>
+%% </ul>
+%% Unknown keys, wrong types, numbers above 1e12 in magnitude, duplicate
+%% ids and bodies that overlap at the start are refused.
+%%
+%% ```
+%% {"name": "two_balls", "duration_ms": 2000, "substep_ms": 1, "frame_ms": 10,
+%%  "model": {"gravity": [0, -9.81, 0], "restitution": 0.8},
+%%  "bodies": [
+%%   {"id": "a", "shape": "sphere", "radius": 0.5, "mass": 1.0,
+%%    "position": [0, 1, 0], "velocity": [2, 0, 0]},
+%%   {"id": "floor", "shape": "plane", "static": true, "normal": [0, 1, 0], "offset": 0.0}]}
+%% '''
 -module(rw_scene).
 -include("rigidwarp.hrl").
 -include_lib("kernel/include/file.hrl").
@@ -9,25 +48,31 @@
 -export_type([error/0, overrides/0]).
 
 -type path() :: [binary() | non_neg_integer()].
+%% Where in the JSON: keys and 0-based array positions.
 -type error() :: {scene_error, File :: string() | undefined, path(), Message :: string()}.
-%% Values that replace the scene's own (from CLI flags or the shell).
-%% Times in ms (whole microseconds: 0.5 is a valid substep).
+%% What is wrong and where; format_error/1 makes it one line.
 -type overrides() :: #{duration_ms => number(), substep_ms => number(),
                        stride_ms => number(), frame_ms => number(),
                        buckets => pos_integer(), integrator => rw_integrate:integrator(),
                        ccd => boolean()}.
+%% Values that replace the scene's own (from CLI flags or the shell).
+%% Times in ms (whole microseconds: 0.5 is a valid substep).
 
 %% Coordinates, speeds and sizes beyond this are rejected: far enough for
 %% scenes around +-1e9 m, near enough that squared distances stay finite.
 -define(MAX_ABS, 1.0e12).
 -define(MAX_FILE_BYTES, 64 * 1024 * 1024).
 
+%% @doc The largest magnitude a coordinate, speed or size may have.
 -spec max_abs() -> float().
 max_abs() -> ?MAX_ABS.
 
+%% @doc Read and validate a scene file.
 -spec load(file:filename()) -> {ok, #scene{}} | {error, error()}.
 load(File) -> load(File, #{}).
 
+%% @doc Read and validate a scene file, with Overrides in place of its own
+%% values.
 -spec load(file:filename(), overrides()) -> {ok, #scene{}} | {error, error()}.
 load(File0, Overrides) ->
     File = unicode:characters_to_list(File0),
@@ -42,6 +87,7 @@ load(File0, Overrides) ->
             end
     end.
 
+%% @doc Validate a scene from its JSON text; file names it in errors.
 -spec from_binary(binary(), #{file => string(), overrides => overrides()}) ->
           {ok, #scene{}} | {error, error()}.
 from_binary(Bin, Opts) ->
@@ -51,6 +97,7 @@ from_binary(Bin, Opts) ->
         {error, Msg} -> {error, {scene_error, File, [], Msg}}
     end.
 
+%% @doc Validate a scene from its decoded JSON (maps with binary keys).
 -spec from_map(term(), #{file => string(), overrides => overrides()}) ->
           {ok, #scene{}} | {error, error()}.
 from_map(Map, Opts) ->
@@ -61,6 +108,8 @@ from_map(Map, Opts) ->
         throw:{invalid, Path, Msg} -> {error, {scene_error, File, Path, Msg}}
     end.
 
+%% @doc One line: the file, the JSON path and the problem, as in
+%% `scenes/x.json: $.bodies[3].radius: must be positive, got -1.0'.
 -spec format_error(error()) -> string().
 format_error({scene_error, File, Path, Msg}) ->
     Where = case File of undefined -> ""; _ -> File ++ ": " end,
@@ -151,11 +200,9 @@ build(Map, Overrides, File) ->
                    {ok, _} -> positive(Map, <<"cell_size">>, []);
                    %% 5 radii: a sphere's box mostly stays in one cell
                    %% for a whole step (one run per write, less hashing and
-                   %% bucket work) while a cell still holds few bodies.
-                   %% Measured on the paper scenes (2 schedulers, 2 s):
-                   %% Cylinders 500 and Bouncing 500 ~25 % faster than
-                   %% at 3 radii, the rest equal or faster; 6-10 radii
-                   %% no better
+                   %% bucket work) while a cell still holds few bodies;
+                   %% smaller cells put a step over more cells, larger
+                   %% ones put more bodies in each
                    error -> 5.0 * MaxR
                end,
     no_overlaps(Spheres, Fixtures, CellSize),
@@ -209,39 +256,41 @@ to_us(X, Path) -> invalid(Path, "must be a positive number of milliseconds, got 
 
 format_ms(Us) -> io_lib:format("~w", [us_to_ms(Us)]).
 
-%% Whole microseconds to ms: an integer when whole (20, 0.5).
+%% @doc Whole microseconds to ms: an integer when whole (20, 0.5).
 -spec us_to_ms(integer()) -> number().
 us_to_ms(Us) when Us rem 1000 =:= 0 -> Us div 1000;
 us_to_ms(Us) -> Us / 1000.
 
-%% Ticks of Scene to milliseconds (an integer when whole, as every frame
-%% time of a scene with a 1 ms tick is). Negative (no frame yet) stays.
+%% @doc Ticks of Scene to milliseconds (an integer when whole, as every
+%% frame time of a scene with a 1 ms tick is). Negative (no frame yet)
+%% stays.
 -spec ms(#scene{}, integer()) -> number().
 ms(#scene{tick_us = 1000}, T) -> T;
 ms(_Scene, T) when T < 0 -> T;
 ms(#scene{tick_us = U}, T) -> us_to_ms(T * U).
 
-%% How long the scene runs, in ms.
-%% What identifies a run's frames: everything the frames depend on (bodies,
-%% fixtures, model, times), not where the scene was read from nor its name
-%% nor the bucket count. A checkpoint is only resumed by a run with the same
-%% fingerprint.
+%% @doc What identifies a run's frames: everything the frames depend on
+%% (bodies, fixtures, model, times), not where the scene was read from nor
+%% its name nor the bucket count. A checkpoint is only resumed by a run
+%% with the same fingerprint.
 -spec fingerprint(#scene{}) -> binary().
 fingerprint(#scene{} = Scene) ->
     erlang:md5(term_to_binary(Scene#scene{name = <<>>, file = undefined, buckets = undefined},
                               [{minor_version, 2}])).
 
-%% The scene as it stands at a checkpoint: the same run, from there on.
+%% @doc The scene as it stands at a checkpoint: the same run, from there
+%% on.
 -spec from_checkpoint(#scene{}, rw_reference:checkpoint()) -> #scene{}.
 from_checkpoint(#scene{spheres = Spheres} = Scene, {checkpoint, Tick, _Ms, States})
   when length(States) =:= length(Spheres) ->
     Scene#scene{start = Tick, initial = States}.
 
+%% @doc How long the scene runs, in ms.
 -spec duration_ms(#scene{}) -> number().
 duration_ms(#scene{duration = D} = Scene) -> ms(Scene, D).
 
-%% A time in ms as an integer when it is whole (frame times, keys of the
-%% frame ring), so that 20 and 20.0 name the same frame.
+%% @doc A time in ms as an integer when it is whole (frame times, keys of
+%% the frame ring), so that 20 and 20.0 name the same frame.
 -spec whole_ms(number()) -> number().
 whole_ms(Ms) when is_float(Ms), Ms == trunc(Ms) -> trunc(Ms);
 whole_ms(Ms) -> Ms.

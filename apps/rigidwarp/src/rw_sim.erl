@@ -66,6 +66,6 @@ gvt_now() ->
 %% regroup point before (rw_gvt): a new persistent contact is stepped as
 %% one group one or two periods after its bodies have met often enough to
 %% say so. Frame times are sync points anyway; regroup points of their own
-%% (every 16 substeps) added a commit per body every 16 ms, 2-5 % of the
-%% time of scenes that never regroup.
+%% would add a commit per body at each, a cost even to scenes that never
+%% regroup.
 period(#scene{substep = Dt, frame = F}) -> F * max(1, (8 * Dt + F - 1) div F).

@@ -2,7 +2,8 @@
 %% TVHT buckets. A binary of more than 64 bytes lives off the process heaps
 %% and is passed by reference, so a bucket neither copies the states when it
 %% receives them nor again at every garbage collection while it keeps them
-%% (as tuples of boxed floats they were most of the buckets' GC work).
+%% (as tuples of boxed floats, copying them would be most of the buckets'
+%% garbage collection work).
 %% Floats are stored as IEEE doubles, bit for bit.
 %%
 %% Per substep: position, velocity, then (with rotation) orientation and

@@ -60,7 +60,7 @@ run(Scene, Opts) ->
     What = case maps:is_key(on_frame, Opts) of true -> frames; false -> times end,
     %% nobody reads the ring of a run (it has no handle to read it with):
     %% only the latest frame's records are kept, not the last 1024 frames'
-    %% (deleting those at the end cost Parallel 500 40 ms)
+    %% (deleting those at the end would count in the run's wall time)
     case start(Scene, maps:merge(#{ring_size => 1}, Opts#{owner => self(), subscribe => What})) of
         {ok, {rw_sim, Run, _} = H} ->
             Calls = #{frame => maps:get(on_frame, Opts, fun(_) -> ok end),

@@ -31,17 +31,19 @@ prepare() ->
     _ = code:ensure_modules_loaded([rw_viewer_http, rw_frames | Web]),
     ok.
 
-%% Start a server for Source; port 0 picks a free port.
+%% Start a server for Source on the port Opts give, else on the
+%% application's viewer_port; port 0 picks a free port.
 -spec start(source(), options()) -> {ok, server()} | {error, string()}.
 start(Source, Opts) ->
     Dir = viewer_dir(),
+    Asked = maps:get(port, Opts, application:get_env(rigidwarp, viewer_port, 8765)),
     case filelib:is_regular(filename:join(Dir, "index.html")) of
         false ->
             {error, "viewer files not found in " ++ Dir};
         true ->
             ok = prepare(),
             Bind = maps:get(bind, Opts, {127, 0, 0, 1}),
-            Config = [{port, maps:get(port, Opts, 8765)},
+            Config = [{port, Asked},
                       {server_name, "rigidwarp"},
                       {server_root, Dir},
                       {document_root, Dir},
@@ -60,7 +62,7 @@ start(Source, Opts) ->
                     {ok, #{pid => Pid, port => Port, host => inet:ntoa(Bind)}};
                 {error, Reason} ->
                     {error, lists:flatten(io_lib:format("cannot start the viewer on port ~p: ~p",
-                                                        [maps:get(port, Opts, 8765), Reason]))}
+                                                        [Asked, Reason]))}
             end
     end.
 

@@ -25,9 +25,10 @@
 -type span(K) :: {Lo :: float(), K, Hi :: float()}.
 %% What the sweep returns for spheres A and B (D their distance, Sum the
 %% sum of their radii):
-%%   {distance, F}  {{A, B}, D, Sum} where D < F x Sum
-%%   {skin, Skin}   {A, B} where D^2 < (Sum + Skin)^2, without a square root
-%% and, for spans, `spans`: {A, B} where they overlap.
+%%   {distance, F}  {{A, B}, D, Sum} where D is less than F x Sum
+%%   {skin, Skin}   {A, B} where D^2 is less than (Sum + Skin)^2, without a
+%%                  square root
+%% and, for spans, the atom spans: {A, B} where they overlap.
 -type test() :: {distance, float()} | {skin, float()} | spans.
 
 %% The pairs that pass Test, each once with the lower key first. Keys are
@@ -87,9 +88,9 @@ overlapping(_, _Hi, _KA, Acc) -> Acc.
 %% of the grid of side CellSize (rw_hash:cells/2), once, as {A, B} with
 %% A < B. The order is fixed by the boxes: cell by cell in the order of the
 %% cells in a map, each pair where it first appears. (Boxes are asked for
-%% one at a time rather than given as a list: a reference run, whose
-%% substeps are mostly this, took 8-10 % longer with a list of boxes to
-%% collect at every substep.)
+%% one at a time rather than given as a list: the reference engine calls
+%% this at every substep, and a list would be built and collected each
+%% time.)
 -spec grid(non_neg_integer(), fun((pos_integer()) -> rw_shape:aabb()), float()) -> [{pos_integer(), pos_integer()}].
 grid(N, BoxOf, CellSize) ->
     {_, Pairs} = maps:fold(fun(_, [_], Acc) -> Acc;

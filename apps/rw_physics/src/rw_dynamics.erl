@@ -10,8 +10,8 @@
 %% body computes from its own state alone. A sphere pinned between a wall and
 %% another sphere then bounces off the wall and exchanges momentum with the
 %% sphere, as in nature, instead of summing two impulses that each assume
-%% the other did not happen (at restitution 1 that lost 5 % of a box's
-%% kinetic energy in one substep).
+%% the other did not happen (at restitution 1 that loses kinetic energy:
+%% 5 % of a box's in one substep).
 -module(rw_dynamics).
 -include("rw_physics.hrl").
 -export([respond/2, step/3, fixture_effects/4, after_fixtures/2]).

@@ -19,8 +19,9 @@
 
 -type body() :: #{id := binary(), r := float(), m := float(), p := rw_vec:vec(), v := rw_vec:vec(),
                   resting => {pos_integer(), rw_vec:vec()}}.
-%% A half-space whose solid side is N.x < Off, or one face of a solid
-%% axis-aligned box: the same half-space, bounded to the face's rectangle.
+%% A half-space whose solid side is where N.x is less than Off, or one face
+%% of a solid axis-aligned box: the same half-space, bounded to the face's
+%% rectangle.
 -type wall() :: {N :: rw_vec:vec(), Off :: float()}
               | {N :: rw_vec:vec(), Off :: float(), {Centre :: rw_vec:vec(), HalfExtents :: rw_vec:vec()}}.
 -type world() :: #{gravity := rw_vec:vec() | undefined, restitution := float(), planes := [wall()]}.

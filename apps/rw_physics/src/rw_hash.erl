@@ -36,9 +36,8 @@ cell_of({X, Y, Z}, S) -> {idx(X, S), idx(Y, S), idx(Z, S)}.
 %% Bucket index in 0..N-1. Blocks of 8x8x8 neighbouring cells share a
 %% bucket, so that a body's few cells usually live in one bucket (a call
 %% per step; a write over two buckets costs two calls and two casts) while
-%% distant regions spread over the pool. Blocks of 4x4x4 put most of
-%% Parallel 500's writes on a block boundary and over two buckets; with
-%% 8x8x8 its 2-scheduler runs took 0.82 of the time.
+%% distant regions spread over the pool. Smaller blocks put a large share
+%% of the writes on a block boundary, over two buckets.
 -spec bucket(cell(), pos_integer()) -> non_neg_integer().
 bucket({X, Y, Z}, N) -> erlang:phash2({X bsr 3, Y bsr 3, Z bsr 3}, N).
 

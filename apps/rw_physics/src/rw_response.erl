@@ -32,7 +32,7 @@ pair(M, #sphere{inv_mass = ImA, inv_inertia = IiA, radius = RA}, #st{v = VA, w =
 %%
 %% (The response is written out in coordinates, as the pair impulse is:
 %% the contact with the floor is computed at almost every substep of every
-%% resting body, and vector temporaries were most of what it allocated.
+%% resting body, and vector temporaries would be most of what it allocates.
 %% Each coordinate is computed by the same operations in the same order as
 %% with rw_vec, so results are bit for bit those.)
 -spec fixture(#model{}, #sphere{}, #st{}, #contact{}) -> effect().
