@@ -9,14 +9,15 @@
 -export([help/1, validate_every_scenario/1, summary_is_last_line/1, frames_file/1,
          bad_flags_exit_2/1, integrator_and_ccd_flags/1, groups_flags/1, bad_scene_exit_2/1, scenes_lists_bundled/1,
          bad_input_corpus/1,
-         generated_bad_inputs/1, progress_line/1, snapshot_png/1, shell_api_rejects_bad_arguments/1]).
+         generated_bad_inputs/1, progress_line/1, snapshot_png/1, shell_api_rejects_bad_arguments/1,
+         summary_key_order/1]).
 
 suite() -> [{timetrap, {minutes, 5}}].
 
 all() -> [help, validate_every_scenario, summary_is_last_line, frames_file, integrator_and_ccd_flags, groups_flags,
           bad_flags_exit_2,
           bad_scene_exit_2, scenes_lists_bundled, bad_input_corpus, generated_bad_inputs, progress_line,
-          snapshot_png, shell_api_rejects_bad_arguments, bench_machine].
+          snapshot_png, shell_api_rejects_bad_arguments, summary_key_order, bench_machine].
 
 help(_Config) ->
     {0, Out, _} = rw_test_lib:run_escript(["help"]),
@@ -57,6 +58,35 @@ summary_is_last_line(_Config) ->
                                                          <<"primary_rollbacks">>, <<"secondary_rollbacks">>,
                                                          <<"rolled_back_substeps">>, <<"efficiency">>]],
     ?assertMatch(#{<<"engine">> := <<"timewarp">>, <<"stride_ms">> := 8, <<"events">> := 1}, TwSummary).
+
+%% The summary's keys come in the order that `run --help` gives, the same in
+%% every run, and they are the documented ones (resumed_from_ms only when a
+%% run resumes).
+summary_key_order(_Config) ->
+    {0, Help, _} = rw_test_lib:run_escript(["run", "--help"]),
+    {match, [Common, Timewarp, Reference]} =
+        re:run(Help, "sorted\\):(.*?), then\\s+timewarp:(.*?);\\s+reference:(.*?)\\n(?! {20})",
+               [dotall, {capture, all_but_first, list}]),
+    Words = fun(Text) -> [list_to_atom(W) || W <- string:lexemes(Text, ", \n")] end,
+    Doc = #{timewarp => Words(Common) ++ Words(Timewarp), reference => Words(Common) ++ Words(Reference)},
+    ct:log("documented: ~p", [Doc]),
+    Scene = rw_test_lib:scenario("head_on_elastic.json"),
+    Keys = fun(Flags) ->
+                   {0, Out, _} = rw_test_lib:run_escript(["run", Scene, "--until", "50", "--quiet" | Flags]),
+                   summary_keys(Out)
+           end,
+    [begin
+         First = Keys(["--engine", atom_to_list(Engine)]),
+         ?assertEqual(First, Keys(["--engine", atom_to_list(Engine)])),
+         ?assertEqual(maps:get(Engine, Doc) -- [resumed_from_ms], First)
+     end || Engine <- [timewarp, reference]],
+    ok.
+
+%% The keys of the summary (the last stdout line) in the order printed.
+summary_keys(Out) ->
+    Lines = binary:split(string:trim(Out), <<"\n">>, [global]),
+    {Props} = jiffy:decode(lists:last(Lines)),
+    [binary_to_atom(K) || {K, _} <- Props].
 
 frames_file(Config) ->
     Out = filename:join(?config(priv_dir, Config), "f.jsonl"),

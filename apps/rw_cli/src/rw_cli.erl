@@ -24,6 +24,15 @@
                              (default on; off is the paper's one entity per body)
       --group-max N          timewarp: the most bodies in one contact group (default 64)
       --quiet                no progress line on stderr
+      the summary's keys in this order (those the run has; any others follow, sorted):
+                             scene, engine, bodies, substep_ms, stride_ms, sim_ms, wall_ms,
+                             realtime_factor, frames, then
+                             timewarp: events, antievents, rollbacks, primary_rollbacks,
+                             secondary_rollbacks, rolled_back_substeps, computed_substeps,
+                             committed_substeps, efficiency, steps, regroups, restarts,
+                             resumed_from_ms, start_ms, end_ms, gvt, max_lvt;
+                             reference: substeps, body_substeps, pair_contacts, fixture_contacts,
+                             resumed_from_ms
 ").
 -define(VALIDATE_HELP,
 "  validate SCENE.json        check a scene file and say what is wrong with it
@@ -175,7 +184,7 @@ run(Args, {File, Opts, Quiet}) ->
     Total = rw_scene:duration_ms(Scene),
     {Progress, Finish} = case Quiet of
                              true -> {#{}, fun() -> ok end};
-                             false -> progress(Total, is_terminal())
+                             false -> rw_cli_report:progress(Total, rw_cli_report:is_terminal())
                          end,
     Result = try
                  rigidwarp:run_scene(Scene, maps:merge(Opts, Progress))
@@ -192,7 +201,7 @@ run(Args, {File, Opts, Quiet}) ->
              end,
     case Result of
         {ok, Summary} ->
-            io:put_chars([jiffy:encode(Summary), $\n]),
+            io:put_chars([rw_cli_report:summary_json(Summary), $\n]),
             0;
         {error, {interrupted, Signal, LastMs}} ->
             io:format(standard_error, "~ts~n", [interrupted(Args, Frames, LastMs)]),
@@ -223,49 +232,4 @@ interrupted(Args, Frames, LastMs) ->
                 {error, _} ->
                     [At, " (frames to ", Path, " cannot be resumed)"]
             end
-    end.
-
-%% The progress line on stderr: redrawn in place (4 times a second) on a
-%% terminal, a plain line every 2 s otherwise (CI logs, pipes), and always
-%% a last one at the end.
-progress(Total, Tty) ->
-    Key = {?MODULE, progress},
-    put(Key, {undefined, ""}),
-    Every = case Tty of true -> 250; false -> 2000 end,
-    Fun = fun(#{gvt := G, wall_ms := Wall} = P) ->
-                  Now = erlang:monotonic_time(millisecond),
-                  {Last, _} = get(Key),
-                  case Last =:= undefined orelse Now - Last >= Every orelse G >= Total of
-                      true ->
-                          Line = progress_line(Total, P, Wall),
-                          put(Key, {Now, Line}),
-                          case Tty of
-                              true -> io:put_chars(standard_error, ["\r\e[K", Line]);
-                              false -> io:put_chars(standard_error, [Line, $\n])
-                          end;
-                      false -> ok
-                  end
-          end,
-    Finish = fun() -> Tty andalso element(2, get(Key)) =/= "" andalso io:put_chars(standard_error, "\n"), ok end,
-    {#{on_progress => Fun}, Finish}.
-
-progress_line(Total, #{gvt := G, realtime_factor := Rt} = P, Wall) ->
-    Eta = case G > 0 of
-              true -> io_lib:format("  ETA ~.1f s", [(Total - G) * Wall / G / 1000]);
-              false -> ""
-          end,
-    Engine = case P of
-                 #{max_lvt := MaxLvt, rollbacks := Rb} ->
-                     io_lib:format("  GVT lag ~s ms  rollbacks ~b", [rw_cli_args:format_ms(max(0, MaxLvt - G)), Rb]);
-                 _ -> ""
-             end,
-    lists:flatten(io_lib:format("rigidwarp: t=~s/~s ms  realtime x~.2f~s~s",
-                                [rw_cli_args:format_ms(max(G, 0)), rw_cli_args:format_ms(Total), float(Rt), Engine, Eta])).
-
-%% stderr on a terminal? (io:columns/0 cannot tell in an escript on OTP 25.)
-is_terminal() ->
-    case file:read_link("/proc/" ++ os:getpid() ++ "/fd/2") of
-        {ok, "/dev/pts/" ++ _} -> true;
-        {ok, "/dev/tty" ++ _} -> true;
-        _ -> false
     end.
