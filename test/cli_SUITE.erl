@@ -10,11 +10,11 @@
          bad_flags_exit_2/1, integrator_and_ccd_flags/1, groups_flags/1, bad_scene_exit_2/1, scenes_lists_bundled/1,
          bad_input_corpus/1,
          generated_bad_inputs/1, progress_line/1, snapshot_png/1, shell_api_rejects_bad_arguments/1,
-         summary_key_order/1]).
+         summary_key_order/1, version/1]).
 
 suite() -> [{timetrap, {minutes, 5}}].
 
-all() -> [help, validate_every_scenario, summary_is_last_line, frames_file, integrator_and_ccd_flags, groups_flags,
+all() -> [help, version, validate_every_scenario, summary_is_last_line, frames_file, integrator_and_ccd_flags, groups_flags,
           bad_flags_exit_2,
           bad_scene_exit_2, scenes_lists_bundled, bad_input_corpus, generated_bad_inputs, progress_line,
           snapshot_png, shell_api_rejects_bad_arguments, summary_key_order, bench_machine].
@@ -31,6 +31,20 @@ help(_Config) ->
          {0, H, _} = rw_test_lib:run_escript([Cmd, "--help"]),
          ?assertMatch({match, _}, re:run(H, "^usage: rigidwarp " ++ Cmd))
      end || Cmd <- ["run", "validate", "scenes", "view", "snapshot", "bench"]].
+
+%% One line, exit 0, under both spellings, and listed in the usage text.
+version(_Config) ->
+    _ = application:load(rigidwarp),
+    {ok, Vsn} = application:get_key(rigidwarp, vsn),
+    [begin
+         {0, Out, Err} = rw_test_lib:run_escript([Arg]),
+         ?assertEqual(<<>>, Err),
+         ?assertMatch({match, _}, re:run(Out, "\\Arigidwarp [0-9][^\\n]*OTP " ++ erlang:system_info(otp_release) ++ "[^\\n]*\\n\\z")),
+         ?assertMatch({match, _}, re:run(Out, "\\Arigidwarp \\Q" ++ Vsn ++ "\\E "))
+     end || Arg <- ["--version", "version"]],
+    {0, Usage, _} = rw_test_lib:run_escript(["help"]),
+    ?assertMatch({match, _}, re:run(Usage, "\\n  version, --version ")),
+    {2, <<>>, _} = rw_test_lib:run_escript(["version", "extra"]).
 
 validate_every_scenario(_Config) ->
     Files = filelib:wildcard(filename:join([rw_test_lib:root(), "scenarios", "*.json"])),

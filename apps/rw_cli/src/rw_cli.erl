@@ -73,11 +73,15 @@
                              bodies do) on 1 and then 2 schedulers, N alternating pairs
                              (default 3); one JSON line (the 2-core floor is judged against it)
 ").
+-define(VERSION_HELP,
+"  version, --version         the rigidwarp version and the Erlang/OTP release it runs on
+").
 -define(USAGE,
 "usage: rigidwarp <command> [options]
 
 commands:
 " ?RUN_HELP ?VALIDATE_HELP ?SCENES_HELP ?VIEW_HELP ?SNAPSHOT_HELP ?BENCH_HELP
+?VERSION_HELP
 "  help                       this text; rigidwarp COMMAND --help for one command
 
 exit codes: 0 ok, 1 runtime failure, 2 bad input (the message names the field or flag)
@@ -109,6 +113,7 @@ main(Args) ->
 dispatch([]) -> io:put_chars(standard_error, ?USAGE), 2;
 dispatch([Help | _]) when Help =:= "help"; Help =:= "--help"; Help =:= "-h" ->
     io:put_chars(?USAGE), 0;
+dispatch(["--version" | Args]) -> command("version", Args);
 dispatch([Cmd | Args]) ->
     case lists:member("--help", Args) orelse lists:member("-h", Args) of
         true -> io:put_chars(["usage: rigidwarp ", string:trim(command_help(Cmd), leading), "\n"]), 0;
@@ -121,6 +126,7 @@ command_help("scenes") -> ?SCENES_HELP;
 command_help("view") -> ?VIEW_HELP;
 command_help("snapshot") -> ?SNAPSHOT_HELP;
 command_help("bench") -> ?BENCH_HELP;
+command_help("version") -> ?VERSION_HELP;
 command_help(Cmd) -> throw({usage, "unknown command " ++ Cmd}).
 
 command("run", Args) -> run(Args, rw_cli_args:parse(Args));
@@ -136,7 +142,20 @@ command("scenes", _) -> throw({usage, "scenes takes at most one directory"});
 command("view", Args) -> rw_cli_view:view(Args);
 command("snapshot", Args) -> rw_cli_view:snapshot(Args);
 command("bench", Args) -> rw_cli_bench:bench(Args);
+command("version", []) -> io:format("~ts~n", [version()]), 0;
+command("version", [Extra | _]) -> throw({usage, "version takes no arguments, got " ++ Extra});
 command(Cmd, _) -> throw({usage, "unknown command " ++ Cmd}).
+
+%% The rigidwarp application's vsn, read from its .app (in the escript's
+%% archive, as anywhere else), and the OTP release and runtime.
+version() ->
+    _ = application:load(rigidwarp),
+    Vsn = case application:get_key(rigidwarp, vsn) of
+              {ok, V} -> V;
+              undefined -> "unknown"
+          end,
+    io_lib:format("rigidwarp ~ts (Erlang/OTP ~ts, erts ~ts)",
+                  [Vsn, erlang:system_info(otp_release), erlang:system_info(version)]).
 
 scenes(Dir) ->
     Files = lists:sort(filelib:wildcard(filename:join(Dir, "*.json"))),
