@@ -10,13 +10,13 @@
          bad_flags_exit_2/1, integrator_and_ccd_flags/1, groups_flags/1, bad_scene_exit_2/1, scenes_lists_bundled/1,
          bad_input_corpus/1,
          generated_bad_inputs/1, progress_line/1, snapshot_png/1, shell_api_rejects_bad_arguments/1,
-         summary_key_order/1, version/1]).
+         summary_key_order/1, version/1, scene_names/1]).
 
 suite() -> [{timetrap, {minutes, 5}}].
 
 all() -> [help, version, validate_every_scenario, summary_is_last_line, frames_file, integrator_and_ccd_flags, groups_flags,
           bad_flags_exit_2,
-          bad_scene_exit_2, scenes_lists_bundled, bad_input_corpus, generated_bad_inputs, progress_line,
+          bad_scene_exit_2, scene_names, scenes_lists_bundled, bad_input_corpus, generated_bad_inputs, progress_line,
           snapshot_png, shell_api_rejects_bad_arguments, summary_key_order, bench_machine].
 
 help(_Config) ->
@@ -234,9 +234,85 @@ bad_scene_exit_2(Config) ->
      end || {File, Expect} <- Cases],
     ok.
 
+%% A scene NAME is scenarios/NAME.json: here, or in the checkout of the
+%% escript when run elsewhere; an unknown name says where it looked.
+scene_names(Config) ->
+    Dir = ?config(priv_dir, Config),
+    Frames = fun(Cwd, Scene, Name) ->
+                     Out = filename:join(Dir, Name),
+                     {0, _, _} = run_escript_in(Cwd, ["run", Scene, "--until", "100", "--quiet", "--frames", Out], 120),
+                     {ok, Bin} = file:read_file(Out),
+                     Bin
+             end,
+    ByPath = Frames(rw_test_lib:root(), "scenarios/bouncing_50_250.json", "path.jsonl"),
+    ?assertEqual(ByPath, Frames(rw_test_lib:root(), "bouncing_50_250", "name.jsonl")),
+    ?assertEqual(ByPath, Frames(Dir, "bouncing_50_250", "elsewhere.jsonl")),
+    {0, <<"scenarios/projectile.json: ok\n">>, _} = rw_test_lib:run_escript(["validate", "projectile"]),
+    Elsewhere = list_to_binary(rw_test_lib:scenario("projectile.json") ++ ": ok\n"),
+    {0, Elsewhere, _} = run_escript_in(Dir, ["validate", "projectile"], 60),
+    %% a name close to some: one line naming the places and the nearest names
+    [begin
+         {Code, Out, Err} = rw_test_lib:run_escript(Args),
+         ct:log("~p -> ~b~n~s", [Args, Code, Err]),
+         ?assertEqual({2, <<>>}, {Code, Out}),
+         ?assertMatch([_], binary:split(string:trim(Err), <<"\n">>, [global])),
+         ?assertMatch({match, _}, re:run(Err, "^rigidwarp: bouncing_200: no such scene \\(looked for bouncing_200, "
+                                              "scenarios/bouncing_200.json\\); closest: bouncing_200_100, "
+                                              "bouncing_200_250, bouncing_200_400"))
+     end || Args <- [["run", "bouncing_200"], ["validate", "bouncing_200"]]],
+    {2, <<>>, Far} = run_escript_in(Dir, ["run", "no_such_scene"], 60),
+    ?assertMatch({match, _}, re:run(Far, "\\Qrigidwarp: no_such_scene: no such scene (looked for no_such_scene, "
+                                         "scenarios/no_such_scene.json, " ++ rw_test_lib:scenario("no_such_scene.json")
+                                         ++ ")\\E; rigidwarp scenes lists the scenes\\n\\z")).
+
+%% Every scene's entry: a line with its file, bodies, duration and start
+%% box, then its whole description indented; the Bouncing scenes differ.
 scenes_lists_bundled(_Config) ->
     {0, Out, _} = rw_test_lib:run_escript(["scenes"]),
-    ?assertMatch({match, _}, re:run(Out, "head_on_elastic.json +2 bodies +1000 ms  [A-Z]")).
+    ct:log("~s", [Out]),
+    Lines = binary:split(string:trim(Out, trailing), <<"\n">>, [global]),
+    [?assert(string:length(L) =< 100) || L <- Lines],
+    Entries = entries(Lines),
+    Files = [filename:basename(F) || F <- filelib:wildcard(filename:join([rw_test_lib:root(), "scenarios", "*.json"]))],
+    ?assertEqual(lists:sort(Files), lists:sort([binary_to_list(F) || {F, _, _} <- Entries])),
+    [begin
+         {ok, Bin} = file:read_file(rw_test_lib:scenario(binary_to_list(F))),
+         #{<<"description">> := D} = jiffy:decode(Bin, [return_maps]),
+         ?assertEqual(lists:join(" ", string:lexemes(D, " ")), lists:join(" ", Desc))
+     end || {F, _, Desc} <- Entries],
+    Head = fun(F) -> {F, H, _} = lists:keyfind(F, 1, Entries), H end,
+    ?assertMatch({match, _}, re:run(Head(<<"head_on_elastic.json">>), "^ +2 bodies +1000 ms  in \\[-?[0-9.]+,")),
+    [?assertMatch({match, _}, re:run(Head(F), "^ +1 body +[0-9]+ ms  at \\[[-0-9.]+,[-0-9.]+,[-0-9.]+\\]$"))
+     || F <- [<<"projectile.json">>, <<"ball_drop.json">>, <<"fast_thin_wall.json">>]],
+    Bouncing = [H || {<<"bouncing_", _/binary>>, H, _} <- Entries],
+    ?assert(length(Bouncing) >= 7),
+    ?assertEqual(length(Bouncing), length(lists:usort(Bouncing))).
+
+%% The scene list as {File, RestOfFirstLine, DescriptionWords}.
+entries([]) -> [];
+entries([First | Rest]) ->
+    {Desc, More} = lists:splitwith(fun(<<"    ", _/binary>>) -> true; (_) -> false end, Rest),
+    [File, Head] = binary:split(First, <<" ">>),
+    [{File, Head, lists:append([string:lexemes(D, " ") || D <- Desc])} | entries(More)].
+
+%% run_escript/1 from Cwd, stopped after TimeoutS seconds (exit 124).
+run_escript_in(Cwd, Args, TimeoutS) ->
+    Err = filename:join(string:trim(os:cmd("mktemp -d")), "stderr"),
+    Cmd = lists:flatten(["exec timeout ", integer_to_list(TimeoutS), " ", sh_quote(rw_test_lib:escript()),
+                         [[" ", sh_quote(A)] || A <- Args], " 2>", sh_quote(Err)]),
+    Port = open_port({spawn_executable, "/bin/sh"}, [{args, ["-c", Cmd]}, exit_status, binary, stream, {cd, Cwd}]),
+    {Code, Out} = collect(Port, []),
+    {ok, ErrBin} = file:read_file(Err),
+    ok = file:del_dir_r(filename:dirname(Err)),
+    {Code, Out, ErrBin}.
+
+sh_quote(S) -> "'" ++ lists:flatten(string:replace(S, "'", "'\\''", all)) ++ "'".
+
+collect(Port, Acc) ->
+    receive
+        {Port, {data, D}} -> collect(Port, [Acc, D]);
+        {Port, {exit_status, S}} -> {S, iolist_to_binary(Acc)}
+    end.
 
 %%% The bad-input corpus (test/bad_input): for each broken scene, exit code
 %%% 2, one line on stderr with the JSON path and the problem, nothing on

@@ -5,7 +5,7 @@
 -include_lib("rigidwarp/include/rigidwarp.hrl").
 
 -define(RUN_HELP,
-"  run SCENE.json [options]   run a scene; the summary JSON is the last line on stdout
+"  run SCENE [options]        run a scene; the summary JSON is the last line on stdout
       --engine ENGINE        timewarp (default, parallel) or reference (sequential oracle)
       --schedulers N         scheduler threads for the timewarp engine (default: all cores)
       --buckets N            TVHT bucket processes (default: the scene's buckets, else 64)
@@ -35,22 +35,27 @@
                              resumed_from_ms
 ").
 -define(VALIDATE_HELP,
-"  validate SCENE.json        check a scene file and say what is wrong with it
+"  validate SCENE             check a scene and say what is wrong with it
 ").
 -define(SCENES_HELP,
-"  scenes [DIR]               list the scenes in DIR (default: scenarios), one line each
+"  scenes [DIR]               list the scenes in DIR (default: the scenarios directory where
+                             SCENE names are looked up): file, bodies, duration in ms, the box
+                             the bodies start in, then the whole description
 ").
 -define(VIEW_HELP,
-"  view FRAMES.jsonl --scene SCENE.json [--port N]
+"  view FRAMES.jsonl --scene SCENE [--port N]
                              serve the 3D viewer on http://127.0.0.1:N/ (default 8765)
-                             playing back a frames file written by run --frames
-  view --live SCENE.json [run options] [--port N]
-                             run the scene on the timewarp engine and watch it live
+                             playing back a frames file written by run --frames of SCENE
+                             (frames of other bodies are refused)
+  view --live SCENE [run options] [--port N]
+                             run the scene on the timewarp engine and watch it live, with
+                             run's progress line on stderr and its summary on stdout at the
+                             end; the viewer serves on until Ctrl-C
 ").
 -define(SNAPSHOT_HELP,
-"  snapshot FRAMES.jsonl --scene SCENE.json --at MS --out FILE.png
+"  snapshot FRAMES.jsonl --scene SCENE --at MS --out FILE.png
                              a picture of the frame at MS (front view, x right, y up;
-                             gnuplot), without a browser
+                             gnuplot), without a browser; MS within the file's times
 ").
 -define(BENCH_HELP,
 "  bench accuracy [options]   speed versus accuracy: sweeps substep, stride, integrator and CCD
@@ -76,6 +81,10 @@
 -define(VERSION_HELP,
 "  version, --version         the rigidwarp version and the Erlang/OTP release it runs on
 ").
+-define(SCENE_HELP,
+"SCENE is a scene file, or the NAME of one: scenarios/NAME.json in the current directory, else
+in the rigidwarp checkout whose _build/PROFILE/bin holds this escript (rigidwarp scenes lists them)
+").
 -define(USAGE,
 "usage: rigidwarp <command> [options]
 
@@ -84,6 +93,7 @@ commands:
 ?VERSION_HELP
 "  help                       this text; rigidwarp COMMAND --help for one command
 
+" ?SCENE_HELP "
 exit codes: 0 ok, 1 runtime failure, 2 bad input (the message names the field or flag)
 ").
 
@@ -116,28 +126,29 @@ dispatch([Help | _]) when Help =:= "help"; Help =:= "--help"; Help =:= "-h" ->
 dispatch(["--version" | Args]) -> command("version", Args);
 dispatch([Cmd | Args]) ->
     case lists:member("--help", Args) orelse lists:member("-h", Args) of
-        true -> io:put_chars(["usage: rigidwarp ", string:trim(command_help(Cmd), leading), "\n"]), 0;
+        true -> io:put_chars(["usage: rigidwarp ", string:trim(command_help(Cmd)), "\n"]), 0;
         false -> command(Cmd, Args)
     end.
 
-command_help("run") -> ?RUN_HELP;
-command_help("validate") -> ?VALIDATE_HELP;
+command_help("run") -> ?RUN_HELP "\n" ?SCENE_HELP;
+command_help("validate") -> ?VALIDATE_HELP "\n" ?SCENE_HELP;
 command_help("scenes") -> ?SCENES_HELP;
-command_help("view") -> ?VIEW_HELP;
-command_help("snapshot") -> ?SNAPSHOT_HELP;
+command_help("view") -> ?VIEW_HELP "\n" ?SCENE_HELP;
+command_help("snapshot") -> ?SNAPSHOT_HELP "\n" ?SCENE_HELP;
 command_help("bench") -> ?BENCH_HELP;
 command_help("version") -> ?VERSION_HELP;
 command_help(Cmd) -> throw({usage, "unknown command " ++ Cmd}).
 
 command("run", Args) -> run(Args, rw_cli_args:parse(Args));
-command("validate", [File]) ->
+command("validate", [Arg]) ->
+    File = rw_cli_scene:resolve(Arg),
     case rigidwarp:load(File, #{}) of
         {ok, _} -> io:format("~ts: ok~n", [File]), 0;
         {error, Msg} -> throw({bad_input, Msg})
     end;
 command("validate", _) -> throw({usage, "validate takes exactly one scene file"});
-command("scenes", []) -> scenes("scenarios");
-command("scenes", [Dir]) -> scenes(Dir);
+command("scenes", []) -> rw_cli_scene:list(default);
+command("scenes", [Dir]) -> rw_cli_scene:list(Dir);
 command("scenes", _) -> throw({usage, "scenes takes at most one directory"});
 command("view", Args) -> rw_cli_view:view(Args);
 command("snapshot", Args) -> rw_cli_view:snapshot(Args);
@@ -157,32 +168,8 @@ version() ->
     io_lib:format("rigidwarp ~ts (Erlang/OTP ~ts, erts ~ts)",
                   [Vsn, erlang:system_info(otp_release), erlang:system_info(version)]).
 
-scenes(Dir) ->
-    Files = lists:sort(filelib:wildcard(filename:join(Dir, "*.json"))),
-    Files =:= [] andalso throw({bad_input, "no scene files in " ++ Dir}),
-    [case rigidwarp:load(F, #{}) of
-         {ok, #scene{spheres = Spheres} = S} ->
-             io:format("~-24ts ~5b bodies  ~5s ms  ~ts~n",
-                       [filename:basename(F), length(Spheres), rw_cli_args:format_ms(rw_scene:duration_ms(S)),
-                        summary_line(F)]);
-         {error, Msg} -> io:format("~-24ts INVALID: ~ts~n", [filename:basename(F), Msg])
-     end || F <- Files],
-    0.
-
-%% A scene's description, cut to fit a line.
-summary_line(File) ->
-    {ok, Bin} = file:read_file(File),
-    case jiffy:decode(Bin, [return_maps]) of
-        #{<<"description">> := D} when is_binary(D) ->
-            Text = unicode:characters_to_list(D),
-            case string:length(Text) > 80 of
-                true -> string:slice(Text, 0, 77) ++ "...";
-                false -> Text
-            end;
-        _ -> ""
-    end.
-
-run(Args, {File, Opts, Quiet}) ->
+run(Args, {Arg, Opts, Quiet}) ->
+    File = rw_cli_scene:resolve(Arg),
     %% from the start, so that no signal meets OTP's default handler
     ok = rw_cli_signals:install(self()),
     %% a bad frames path is refused before anything is loaded or created
