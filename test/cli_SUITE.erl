@@ -10,14 +10,14 @@
          bad_flags_exit_2/1, integrator_and_ccd_flags/1, groups_flags/1, bad_scene_exit_2/1, scenes_lists_bundled/1,
          bad_input_corpus/1,
          generated_bad_inputs/1, progress_line/1, snapshot_png/1, shell_api_rejects_bad_arguments/1,
-         summary_key_order/1, version/1, scene_names/1]).
+         summary_key_order/1, version/1, scene_names/1, frames_must_match_scene/1, live_view_reports/1]).
 
 suite() -> [{timetrap, {minutes, 5}}].
 
 all() -> [help, version, validate_every_scenario, summary_is_last_line, frames_file, integrator_and_ccd_flags, groups_flags,
           bad_flags_exit_2,
           bad_scene_exit_2, scene_names, scenes_lists_bundled, bad_input_corpus, generated_bad_inputs, progress_line,
-          snapshot_png, shell_api_rejects_bad_arguments, summary_key_order, bench_machine].
+          snapshot_png, frames_must_match_scene, live_view_reports, shell_api_rejects_bad_arguments, summary_key_order, bench_machine].
 
 help(_Config) ->
     {0, Out, _} = rw_test_lib:run_escript(["help"]),
@@ -295,12 +295,15 @@ entries([First | Rest]) ->
     [File, Head] = binary:split(First, <<" ">>),
     [{File, Head, lists:append([string:lexemes(D, " ") || D <- Desc])} | entries(More)].
 
-%% run_escript/1 from Cwd, stopped after TimeoutS seconds (exit 124).
-run_escript_in(Cwd, Args, TimeoutS) ->
+%% run_escript/1 from Cwd (with Env), stopped after TimeoutS seconds (exit 124).
+run_escript_in(Cwd, Args, TimeoutS) -> run_escript_in(Cwd, [], Args, TimeoutS).
+
+run_escript_in(Cwd, Env, Args, TimeoutS) ->
     Err = filename:join(string:trim(os:cmd("mktemp -d")), "stderr"),
-    Cmd = lists:flatten(["exec timeout ", integer_to_list(TimeoutS), " ", sh_quote(rw_test_lib:escript()),
-                         [[" ", sh_quote(A)] || A <- Args], " 2>", sh_quote(Err)]),
-    Port = open_port({spawn_executable, "/bin/sh"}, [{args, ["-c", Cmd]}, exit_status, binary, stream, {cd, Cwd}]),
+    Cmd = lists:flatten(["exec ", os:find_executable("timeout"), " ", integer_to_list(TimeoutS), " ",
+                         sh_quote(rw_test_lib:escript()), [[" ", sh_quote(A)] || A <- Args], " 2>", sh_quote(Err)]),
+    Port = open_port({spawn_executable, "/bin/sh"}, [{args, ["-c", Cmd]}, {env, Env}, exit_status, binary, stream,
+                                                     {cd, Cwd}]),
     {Code, Out} = collect(Port, []),
     {ok, ErrBin} = file:read_file(Err),
     ok = file:del_dir_r(filename:dirname(Err)),
@@ -390,6 +393,107 @@ snapshot_png(Config) ->
     ok = file:write_file(Frames, <<"{\"t\":0,\"bodies\":[]}\nnot json\n">>),
     {2, _, Err} = rw_test_lib:run_escript(["snapshot", Frames, "--scene", Scene, "--at", "0", "--out", Png]),
     ?assertMatch({match, _}, re:run(Err, ":2: not a frame line")).
+
+%% Frames shown with a scene that did not make them, and --at outside the
+%% file's times, are refused at once: exit 2, one line, no server started,
+%% no gnuplot needed (it is off the PATH here).
+frames_must_match_scene(Config) ->
+    Dir = ?config(priv_dir, Config),
+    Frames = fun(Scene, Name, Flags) ->
+                     Out = filename:join(Dir, Name),
+                     {0, _, _} = rw_test_lib:run_escript(["run", Scene, "--quiet", "--frames", Out | Flags]),
+                     Out
+             end,
+    Head = Frames("head_on_elastic", "head.jsonl", ["--until", "300"]),
+    Cradle = Frames("newtons_cradle", "cradle.jsonl", ["--until", "300"]),
+    {ok, HeadBin} = file:read_file(Head),
+    [First | _] = binary:split(HeadBin, <<"\n">>, [global]),
+    #{<<"bodies">> := [A, _]} = FirstFrame = jiffy:decode(First, [return_maps]),
+    OneBody = filename:join(Dir, "one.jsonl"),
+    ok = file:write_file(OneBody, [jiffy:encode(FirstFrame#{<<"bodies">> := [A]}), $\n, HeadBin]),
+    Twice = filename:join(Dir, "twice.jsonl"),
+    ok = file:write_file(Twice, [jiffy:encode(FirstFrame#{<<"bodies">> := [A, A]}), $\n]),
+    Png = filename:join(Dir, "never.png"),
+    Path = no_gnuplot_path(Dir),
+    Cases = [{["view", Head, "--scene", "newtons_cradle", "--port", "0"],
+              Head ++ ": body a in the frame at t=0 ms is not a dynamic body of scenarios/newtons_cradle.json "
+              "(the frame has 2 bodies, the scene 5): frames of another scene?"},
+             {["snapshot", Cradle, "--scene", rw_test_lib:scenario("head_on_elastic.json"), "--at", "100", "--out", Png],
+              Cradle ++ ": body b0 in the frame at t=0 ms is not a dynamic body of "
+              ++ rw_test_lib:scenario("head_on_elastic.json") ++ " (the frame has 5 bodies, the scene 2)"},
+             {["view", OneBody, "--scene", "head_on_elastic", "--port", "0"],
+              OneBody ++ ": the frame at t=0 ms has 1 body, scenarios/head_on_elastic.json has 2 bodies"},
+             {["snapshot", Twice, "--scene", "head_on_elastic", "--at", "0", "--out", Png],
+              Twice ++ ": the frame at t=0 ms lacks body b of scenarios/head_on_elastic.json"},
+             {["snapshot", Head, "--scene", "head_on_elastic", "--at", "99999", "--out", Png],
+              "--at 99999 is outside the times of " ++ Head ++ ": 0..300 ms"},
+             {["view", Head, "--scene", "no_such_scene", "--port", "0"], "no_such_scene: no such scene"}],
+    [begin
+         T0 = erlang:monotonic_time(millisecond),
+         {Code, Out, Err} = run_escript_in(rw_test_lib:root(), [{"PATH", Path}], Args, 30),
+         Ms = erlang:monotonic_time(millisecond) - T0,
+         ct:log("~p -> ~b in ~b ms~n~s", [Args, Code, Ms, Err]),
+         ?assertEqual({2, <<>>}, {Code, Out}),
+         ?assertMatch([_], binary:split(string:trim(Err), <<"\n">>, [global])),
+         ?assertMatch({match, _}, re:run(Err, "^rigidwarp: \\Q" ++ Expect ++ "\\E")),
+         ?assert(Ms < 10000)
+     end || {Args, Expect} <- Cases],
+    ?assertNot(filelib:is_file(Png)),
+    %% the frames of a scene with a time inside the file are fine (and gnuplot is missing)
+    {1, <<>>, NoGnuplot} = run_escript_in(rw_test_lib:root(), [{"PATH", Path}],
+                                          ["snapshot", Head, "--scene", "head_on_elastic", "--at", "300", "--out", Png], 30),
+    ?assertMatch({match, _}, re:run(NoGnuplot, "snapshot needs gnuplot")).
+
+%% A directory for PATH with what the escript needs and no gnuplot.
+no_gnuplot_path(Dir) ->
+    Bin = filename:join(Dir, "bin"),
+    ok = filelib:ensure_dir(filename:join(Bin, "x")),
+    [begin
+         Link = filename:join(Bin, Cmd),
+         _ = file:delete(Link),
+         ok = file:make_symlink(os:find_executable(Cmd), Link)
+     end || Cmd <- ["escript", "erl", "dirname", "basename", "sed"]],
+    Bin.
+
+%% view --live: run's progress line on stderr, run's summary on stdout when
+%% the run ends (keys in run's order), and the viewer serves on after it.
+live_view_reports(Config) ->
+    ErrFile = filename:join(?config(priv_dir, Config), "live.stderr"),
+    Cmd = lists:flatten(["exec ", sh_quote(rw_test_lib:escript()), " view --live head_on_elastic --until 500 --port 0 2>",
+                         sh_quote(ErrFile)]),
+    Port = open_port({spawn_executable, "/bin/sh"}, [{args, ["-c", Cmd]}, {line, 1 bsl 16}, binary, exit_status,
+                                                     {cd, rw_test_lib:root()}]),
+    {os_pid, OsPid} = erlang:port_info(Port, os_pid),
+    try
+        [Url, Summary] = read_lines(Port, 2),
+        {match, [PortNum]} = re:run(Url, "^http://127.0.0.1:([0-9]+)/$", [{capture, all_but_first, list}]),
+        {0, Run, _} = rw_test_lib:run_escript(["run", "head_on_elastic", "--until", "500", "--quiet"]),
+        ?assertEqual(summary_keys(Run), summary_keys(Summary)),
+        ?assertMatch(#{<<"scene">> := <<"head_on_elastic">>, <<"engine">> := <<"timewarp">>, <<"bodies">> := 2,
+                       <<"sim_ms">> := 500, <<"frames">> := 51, <<"gvt">> := 500},
+                     jiffy:decode(Summary, [return_maps])),
+        {ok, Sock} = gen_tcp:connect("127.0.0.1", list_to_integer(PortNum), [binary, {active, false}], 5000),
+        ok = gen_tcp:close(Sock),
+        {ok, Err} = file:read_file(ErrFile),
+        ct:log("~s~n~s", [Summary, Err]),
+        [Viewer | Progress] = binary:split(string:trim(Err), <<"\n">>, [global]),
+        ?assertMatch({match, _}, re:run(Viewer, "^rigidwarp: viewer at http")),
+        ?assertNotEqual([], Progress),
+        [?assertMatch({match, _}, re:run(L, "^rigidwarp: t=[0-9]+/500 ms  realtime x[0-9.]+  GVT lag [0-9]+ ms  "
+                                            "rollbacks [0-9]+")) || L <- Progress],
+        ?assertMatch({match, _}, re:run(lists:last(Progress), "t=500/500 ms.*ETA 0.0 s"))
+    after
+        os:cmd("kill " ++ integer_to_list(OsPid)),
+        receive {Port, {exit_status, _}} -> ok after 10000 -> ok end
+    end.
+
+read_lines(_Port, 0) -> [];
+read_lines(Port, N) ->
+    receive
+        {Port, {data, {eol, Line}}} -> [Line | read_lines(Port, N - 1)];
+        {Port, {exit_status, S}} -> error({exited, S})
+    after 60000 -> error(no_line)
+    end.
 
 %% The shell API answers bad arguments with {error, Message}, starting nothing.
 shell_api_rejects_bad_arguments(_Config) ->
