@@ -205,12 +205,18 @@ bad_flags_exit_2(_Config) ->
              {["bench", "accuracy", "--scenes", "cylinders_200"], "cylinders_200: the exact solver models spheres"},
              {["bench", "machine", "--repeats", "0"], "--repeats must be a positive integer, got 0"},
              {["bench", "machine", "--fast"], "bench machine takes only --repeats N"},
-             {["bench", "speed"], "unknown benchmark speed (known: accuracy, machine)"}],
+             {["bench", "speed"], "unknown benchmark speed (known: accuracy, machine)"},
+             %% a newline in an argument is shown escaped: every message is one line
+             {["run", "two\nlines"], "two\\nlines: no such scene"},
+             {["run", "two\nlines.json"], "two\\nlines.json: $: cannot read file"},
+             {["run", Scene, "--until", "1\n2"], "--until must be a positive number of ms (such as 2 or 0.5), got 1\\n2"},
+             {["view", "f.jsonl", "--scene", "bad\tname"], "bad\\tname: no such scene"}],
     [begin
          {Code, Out, Err} = rw_test_lib:run_escript(Args),
          ct:log("~p -> ~b~n~s", [Args, Code, Err]),
          ?assertEqual(2, Code),
          ?assertEqual(<<>>, Out),
+         ?assertMatch([_], binary:split(string:trim(Err), <<"\n">>, [global])),
          ?assertMatch({match, _}, re:run(Err, "\\Q" ++ Expect ++ "\\E"))
      end || {Args, Expect} <- Cases],
     ok.

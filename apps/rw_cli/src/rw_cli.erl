@@ -105,10 +105,10 @@ main(Args) ->
     Code = try dispatch(Args)
            catch
                throw:{usage, Msg} ->
-                   io:format(standard_error, "rigidwarp: ~ts~n(see rigidwarp help)~n", [Msg]),
+                   io:format(standard_error, "rigidwarp: ~ts (see rigidwarp help)~n", [rw_cli_report:one_line(Msg)]),
                    2;
                throw:{bad_input, Msg} ->
-                   io:format(standard_error, "rigidwarp: ~ts~n", [Msg]),
+                   io:format(standard_error, "rigidwarp: ~ts~n", [rw_cli_report:one_line(Msg)]),
                    2;
                error:terminated ->
                    %% stdout was closed (`rigidwarp scenes | head`): stop quietly,
@@ -213,7 +213,7 @@ run(Args, {Arg, Opts, Quiet}) ->
             io:format(standard_error, "~ts~n", [interrupted(Args, Frames, LastMs)]),
             rw_cli_signals:exit_code(Signal);
         {error, Reason} ->
-            io:format(standard_error, "rigidwarp: ~ts~n", [rigidwarp:format_error(Reason)]),
+            io:format(standard_error, "rigidwarp: ~ts~n", [rw_cli_report:one_line(rigidwarp:format_error(Reason))]),
             1
     end.
 

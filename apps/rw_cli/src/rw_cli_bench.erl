@@ -112,7 +112,8 @@ accuracy(#{out := Csv, plot := Png, quiet := Quiet} = Opts) ->
                     io:format(standard_error, "rigidwarp: wrote ~ts and ~ts~n", [Csv, Png]),
                     0;
                 {error, Why} ->
-                    io:format(standard_error, "rigidwarp: wrote ~ts; gnuplot failed: ~ts~n", [Csv, Why]),
+                    io:format(standard_error, "rigidwarp: wrote ~ts; gnuplot failed: ~ts~n",
+                              [Csv, rw_cli_report:one_line(Why)]),
                     1
             end
     end.

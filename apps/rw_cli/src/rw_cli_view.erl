@@ -175,7 +175,7 @@ plot(Gnuplot, #scene{name = Name, spheres = Spheres, fixtures = Fixtures}, {fram
     _ = file:del_dir_r(Dir),
     case filelib:is_regular(Out) of
         true -> io:format("~ts~n", [Out]), 0;
-        false -> io:format(standard_error, "rigidwarp: gnuplot failed: ~ts~n", [Result]), 1
+        false -> io:format(standard_error, "rigidwarp: gnuplot failed: ~ts~n", [rw_cli_report:one_line(Result)]), 1
     end.
 
 bounds(Xs, Ys, Fixtures, Pad) ->
