@@ -410,8 +410,10 @@ frames_must_match_scene(Config) ->
                      {0, _, _} = rw_test_lib:run_escript(["run", Scene, "--quiet", "--frames", Out | Flags]),
                      Out
              end,
-    Head = Frames("head_on_elastic", "head.jsonl", ["--until", "300"]),
-    Cradle = Frames("newtons_cradle", "cradle.jsonl", ["--until", "300"]),
+    HeadOn = rw_test_lib:scenario("head_on_elastic.json"),
+    NewtonsCradle = rw_test_lib:scenario("newtons_cradle.json"),
+    Head = Frames(HeadOn, "head.jsonl", ["--until", "300"]),
+    Cradle = Frames(NewtonsCradle, "cradle.jsonl", ["--until", "300"]),
     {ok, HeadBin} = file:read_file(Head),
     [First | _] = binary:split(HeadBin, <<"\n">>, [global]),
     #{<<"bodies">> := [A, _]} = FirstFrame = jiffy:decode(First, [return_maps]),
@@ -421,18 +423,20 @@ frames_must_match_scene(Config) ->
     ok = file:write_file(Twice, [jiffy:encode(FirstFrame#{<<"bodies">> := [A, A]}), $\n]),
     Png = filename:join(Dir, "never.png"),
     Path = no_gnuplot_path(Dir),
-    Cases = [{["view", Head, "--scene", "newtons_cradle", "--port", "0"],
-              Head ++ ": body a in the frame at t=0 ms is not a dynamic body of scenarios/newtons_cradle.json "
-              "(the frame has 2 bodies, the scene 5): frames of another scene?"},
-             {["snapshot", Cradle, "--scene", rw_test_lib:scenario("head_on_elastic.json"), "--at", "100", "--out", Png],
-              Cradle ++ ": body b0 in the frame at t=0 ms is not a dynamic body of "
-              ++ rw_test_lib:scenario("head_on_elastic.json") ++ " (the frame has 5 bodies, the scene 2)"},
-             {["view", OneBody, "--scene", "head_on_elastic", "--port", "0"],
-              OneBody ++ ": the frame at t=0 ms has 1 body, scenarios/head_on_elastic.json has 2 bodies"},
-             {["snapshot", Twice, "--scene", "head_on_elastic", "--at", "0", "--out", Png],
-              Twice ++ ": the frame at t=0 ms lacks body b of scenarios/head_on_elastic.json"},
-             {["snapshot", Head, "--scene", "head_on_elastic", "--at", "99999", "--out", Png],
+    Cases = [{["view", Head, "--scene", NewtonsCradle, "--port", "0"],
+              Head ++ ": body a in the frame at t=0 ms is not a dynamic body of " ++ NewtonsCradle ++
+              " (the frame has 2 bodies, the scene 5): frames of another scene?"},
+             {["snapshot", Cradle, "--scene", HeadOn, "--at", "100", "--out", Png],
+              Cradle ++ ": body b0 in the frame at t=0 ms is not a dynamic body of " ++ HeadOn ++
+              " (the frame has 5 bodies, the scene 2)"},
+             {["view", OneBody, "--scene", HeadOn, "--port", "0"],
+              OneBody ++ ": the frame at t=0 ms has 1 body, " ++ HeadOn ++ " has 2 bodies"},
+             {["snapshot", Twice, "--scene", HeadOn, "--at", "0", "--out", Png],
+              Twice ++ ": the frame at t=0 ms lacks body b of " ++ HeadOn},
+             {["snapshot", Head, "--scene", HeadOn, "--at", "99999", "--out", Png],
               "--at 99999 is outside the times of " ++ Head ++ ": 0..300 ms"},
+             {["view", Head, "--scene", "newtons_cradle", "--port", "0"],
+              Head ++ ": body a in the frame at t=0 ms is not a dynamic body of scenarios/newtons_cradle.json"},
              {["view", Head, "--scene", "no_such_scene", "--port", "0"], "no_such_scene: no such scene"}],
     [begin
          T0 = erlang:monotonic_time(millisecond),
@@ -447,7 +451,7 @@ frames_must_match_scene(Config) ->
     ?assertNot(filelib:is_file(Png)),
     %% the frames of a scene with a time inside the file are fine (and gnuplot is missing)
     {1, <<>>, NoGnuplot} = run_escript_in(rw_test_lib:root(), [{"PATH", Path}],
-                                          ["snapshot", Head, "--scene", "head_on_elastic", "--at", "300", "--out", Png], 30),
+                                          ["snapshot", Head, "--scene", HeadOn, "--at", "300", "--out", Png], 30),
     ?assertMatch({match, _}, re:run(NoGnuplot, "snapshot needs gnuplot")).
 
 %% A directory for PATH with what the escript needs and no gnuplot.
@@ -465,7 +469,8 @@ no_gnuplot_path(Dir) ->
 %% the run ends (keys in run's order), and the viewer serves on after it.
 live_view_reports(Config) ->
     ErrFile = filename:join(?config(priv_dir, Config), "live.stderr"),
-    Cmd = lists:flatten(["exec ", sh_quote(rw_test_lib:escript()), " view --live head_on_elastic --until 500 --port 0 2>",
+    Cmd = lists:flatten(["exec ", sh_quote(rw_test_lib:escript()), " view --live ",
+                         sh_quote(rw_test_lib:scenario("head_on_elastic.json")), " --until 500 --port 0 2>",
                          sh_quote(ErrFile)]),
     Port = open_port({spawn_executable, "/bin/sh"}, [{args, ["-c", Cmd]}, {line, 1 bsl 16}, binary, exit_status,
                                                      {cd, rw_test_lib:root()}]),
@@ -473,7 +478,8 @@ live_view_reports(Config) ->
     try
         [Url, Summary] = read_lines(Port, 2),
         {match, [PortNum]} = re:run(Url, "^http://127.0.0.1:([0-9]+)/$", [{capture, all_but_first, list}]),
-        {0, Run, _} = rw_test_lib:run_escript(["run", "head_on_elastic", "--until", "500", "--quiet"]),
+        {0, Run, _} = rw_test_lib:run_escript(["run", rw_test_lib:scenario("head_on_elastic.json"), "--until", "500",
+                                                "--quiet"]),
         ?assertEqual(summary_keys(Run), summary_keys(Summary)),
         ?assertMatch(#{<<"scene">> := <<"head_on_elastic">>, <<"engine">> := <<"timewarp">>, <<"bodies">> := 2,
                        <<"sim_ms">> := 500, <<"frames">> := 51, <<"gvt">> := 500},
