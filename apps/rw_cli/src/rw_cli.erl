@@ -1,8 +1,7 @@
-%% The `rigidwarp` escript: batch runs of scene files.
+%% The `rigidwarp` escript: its commands, their help text and exit codes.
 %% Exit codes: 0 ok, 2 bad input (flags or scene), 1 runtime failure.
 -module(rw_cli).
 -export([main/1]).
--include_lib("rigidwarp/include/rigidwarp.hrl").
 
 -define(RUN_HELP,
 "  run SCENE [options]        run a scene; the summary JSON is the last line on stdout
@@ -61,7 +60,7 @@
 "  bench accuracy [options]   speed versus accuracy: sweeps substep, stride, integrator and CCD
                              over analytic scenes, measured against their exact solution;
                              a table on stdout, a CSV file and a Pareto plot (gnuplot)
-      --scenes A,B           scene names (scenarios/NAME.json) or files, each optionally
+      --scenes A,B           scenes (files or NAMEs, as SCENE below), each optionally
                              NAME:MS to end at MS (default: projectile, ball_drop,
                              head_on_elastic, newtons_cradle, fast_thin_wall, bouncing_50_250:1000)
       --until MS             end time of the scenes without their own (default: duration_ms)
