@@ -9,14 +9,15 @@
 -export([help/1, validate_every_scenario/1, summary_is_last_line/1, frames_file/1,
          bad_flags_exit_2/1, integrator_and_ccd_flags/1, groups_flags/1, bad_scene_exit_2/1, scenes_lists_bundled/1,
          bad_input_corpus/1,
-         generated_bad_inputs/1, progress_line/1, snapshot_png/1, shell_api_rejects_bad_arguments/1]).
+         generated_bad_inputs/1, progress_line/1, snapshot_png/1, shell_api_rejects_bad_arguments/1,
+         summary_key_order/1, version/1, scene_names/1, frames_must_match_scene/1, live_view_reports/1]).
 
 suite() -> [{timetrap, {minutes, 5}}].
 
-all() -> [help, validate_every_scenario, summary_is_last_line, frames_file, integrator_and_ccd_flags, groups_flags,
+all() -> [help, version, validate_every_scenario, summary_is_last_line, frames_file, integrator_and_ccd_flags, groups_flags,
           bad_flags_exit_2,
-          bad_scene_exit_2, scenes_lists_bundled, bad_input_corpus, generated_bad_inputs, progress_line,
-          snapshot_png, shell_api_rejects_bad_arguments, bench_machine].
+          bad_scene_exit_2, scene_names, scenes_lists_bundled, bad_input_corpus, generated_bad_inputs, progress_line,
+          snapshot_png, frames_must_match_scene, live_view_reports, shell_api_rejects_bad_arguments, summary_key_order, bench_machine].
 
 help(_Config) ->
     {0, Out, _} = rw_test_lib:run_escript(["help"]),
@@ -30,6 +31,20 @@ help(_Config) ->
          {0, H, _} = rw_test_lib:run_escript([Cmd, "--help"]),
          ?assertMatch({match, _}, re:run(H, "^usage: rigidwarp " ++ Cmd))
      end || Cmd <- ["run", "validate", "scenes", "view", "snapshot", "bench"]].
+
+%% One line, exit 0, under both spellings, and listed in the usage text.
+version(_Config) ->
+    _ = application:load(rigidwarp),
+    {ok, Vsn} = application:get_key(rigidwarp, vsn),
+    [begin
+         {0, Out, Err} = rw_test_lib:run_escript([Arg]),
+         ?assertEqual(<<>>, Err),
+         ?assertMatch({match, _}, re:run(Out, "\\Arigidwarp [0-9][^\\n]*OTP " ++ erlang:system_info(otp_release) ++ "[^\\n]*\\n\\z")),
+         ?assertMatch({match, _}, re:run(Out, "\\Arigidwarp \\Q" ++ Vsn ++ "\\E "))
+     end || Arg <- ["--version", "version"]],
+    {0, Usage, _} = rw_test_lib:run_escript(["help"]),
+    ?assertMatch({match, _}, re:run(Usage, "\\n  version, --version ")),
+    {2, <<>>, _} = rw_test_lib:run_escript(["version", "extra"]).
 
 validate_every_scenario(_Config) ->
     Files = filelib:wildcard(filename:join([rw_test_lib:root(), "scenarios", "*.json"])),
@@ -57,6 +72,35 @@ summary_is_last_line(_Config) ->
                                                          <<"primary_rollbacks">>, <<"secondary_rollbacks">>,
                                                          <<"rolled_back_substeps">>, <<"efficiency">>]],
     ?assertMatch(#{<<"engine">> := <<"timewarp">>, <<"stride_ms">> := 8, <<"events">> := 1}, TwSummary).
+
+%% The summary's keys come in the order that `run --help` gives, the same in
+%% every run, and they are the documented ones (resumed_from_ms only when a
+%% run resumes).
+summary_key_order(_Config) ->
+    {0, Help, _} = rw_test_lib:run_escript(["run", "--help"]),
+    {match, [Common, Timewarp, Reference]} =
+        re:run(Help, "sorted\\):(.*?), then\\s+timewarp:(.*?);\\s+reference:(.*?)\\n(?! {20})",
+               [dotall, {capture, all_but_first, list}]),
+    Words = fun(Text) -> [list_to_atom(W) || W <- string:lexemes(Text, ", \n")] end,
+    Doc = #{timewarp => Words(Common) ++ Words(Timewarp), reference => Words(Common) ++ Words(Reference)},
+    ct:log("documented: ~p", [Doc]),
+    Scene = rw_test_lib:scenario("head_on_elastic.json"),
+    Keys = fun(Flags) ->
+                   {0, Out, _} = rw_test_lib:run_escript(["run", Scene, "--until", "50", "--quiet" | Flags]),
+                   summary_keys(Out)
+           end,
+    [begin
+         First = Keys(["--engine", atom_to_list(Engine)]),
+         ?assertEqual(First, Keys(["--engine", atom_to_list(Engine)])),
+         ?assertEqual(maps:get(Engine, Doc) -- [resumed_from_ms], First)
+     end || Engine <- [timewarp, reference]],
+    ok.
+
+%% The keys of the summary (the last stdout line) in the order printed.
+summary_keys(Out) ->
+    Lines = binary:split(string:trim(Out), <<"\n">>, [global]),
+    {Props} = jiffy:decode(lists:last(Lines)),
+    [binary_to_atom(K) || {K, _} <- Props].
 
 frames_file(Config) ->
     Out = filename:join(?config(priv_dir, Config), "f.jsonl"),
@@ -157,16 +201,24 @@ bad_flags_exit_2(_Config) ->
              {["bench", "accuracy", "--out", "a.txt"], "--out must name a .csv file"},
              {["bench", "accuracy", "--plot"], "--plot needs a value"},
              {["bench", "accuracy", "--scenes", "projectile:soon"], "--scenes projectile: must be a positive number of ms"},
-             {["bench", "accuracy", "--scenes", "no_such_scene"], "scenarios/no_such_scene.json: $: cannot read file"},
+             {["bench", "accuracy", "--scenes", "no_such_scene"], "no_such_scene: no such scene"},
+             {["bench", "accuracy", "--scenes", "scenarios/no_such_scene.json"],
+              "scenarios/no_such_scene.json: $: cannot read file"},
              {["bench", "accuracy", "--scenes", "cylinders_200"], "cylinders_200: the exact solver models spheres"},
              {["bench", "machine", "--repeats", "0"], "--repeats must be a positive integer, got 0"},
              {["bench", "machine", "--fast"], "bench machine takes only --repeats N"},
-             {["bench", "speed"], "unknown benchmark speed (known: accuracy, machine)"}],
+             {["bench", "speed"], "unknown benchmark speed (known: accuracy, machine)"},
+             %% a newline in an argument is shown escaped: every message is one line
+             {["run", "two\nlines"], "two\\nlines: no such scene"},
+             {["run", "two\nlines.json"], "two\\nlines.json: $: cannot read file"},
+             {["run", Scene, "--until", "1\n2"], "--until must be a positive number of ms (such as 2 or 0.5), got 1\\n2"},
+             {["view", "f.jsonl", "--scene", "bad\tname"], "bad\\tname: no such scene"}],
     [begin
          {Code, Out, Err} = rw_test_lib:run_escript(Args),
          ct:log("~p -> ~b~n~s", [Args, Code, Err]),
          ?assertEqual(2, Code),
          ?assertEqual(<<>>, Out),
+         ?assertMatch([_], binary:split(string:trim(Err), <<"\n">>, [global])),
          ?assertMatch({match, _}, re:run(Err, "\\Q" ++ Expect ++ "\\E"))
      end || {Args, Expect} <- Cases],
     ok.
@@ -190,9 +242,88 @@ bad_scene_exit_2(Config) ->
      end || {File, Expect} <- Cases],
     ok.
 
+%% A scene NAME is scenarios/NAME.json: here, or in the checkout of the
+%% escript when run elsewhere; an unknown name says where it looked.
+scene_names(Config) ->
+    Dir = ?config(priv_dir, Config),
+    Frames = fun(Cwd, Scene, Name) ->
+                     Out = filename:join(Dir, Name),
+                     {0, _, _} = run_escript_in(Cwd, ["run", Scene, "--until", "100", "--quiet", "--frames", Out], 120),
+                     {ok, Bin} = file:read_file(Out),
+                     Bin
+             end,
+    ByPath = Frames(rw_test_lib:root(), "scenarios/bouncing_50_250.json", "path.jsonl"),
+    ?assertEqual(ByPath, Frames(rw_test_lib:root(), "bouncing_50_250", "name.jsonl")),
+    ?assertEqual(ByPath, Frames(Dir, "bouncing_50_250", "elsewhere.jsonl")),
+    {0, <<"scenarios/projectile.json: ok\n">>, _} = rw_test_lib:run_escript(["validate", "projectile"]),
+    Elsewhere = list_to_binary(rw_test_lib:scenario("projectile.json") ++ ": ok\n"),
+    {0, Elsewhere, _} = run_escript_in(Dir, ["validate", "projectile"], 60),
+    %% a name close to some: one line naming the places and the nearest names
+    [begin
+         {Code, Out, Err} = rw_test_lib:run_escript(Args),
+         ct:log("~p -> ~b~n~s", [Args, Code, Err]),
+         ?assertEqual({2, <<>>}, {Code, Out}),
+         ?assertMatch([_], binary:split(string:trim(Err), <<"\n">>, [global])),
+         ?assertMatch({match, _}, re:run(Err, "^rigidwarp: bouncing_200: no such scene \\(looked for bouncing_200, "
+                                              "scenarios/bouncing_200.json\\); closest: bouncing_200_100, "
+                                              "bouncing_200_250, bouncing_200_400"))
+     end || Args <- [["run", "bouncing_200"], ["validate", "bouncing_200"]]],
+    {2, <<>>, Far} = run_escript_in(Dir, ["run", "no_such_scene"], 60),
+    ?assertMatch({match, _}, re:run(Far, "\\Qrigidwarp: no_such_scene: no such scene (looked for no_such_scene, "
+                                         "scenarios/no_such_scene.json, " ++ rw_test_lib:scenario("no_such_scene.json")
+                                         ++ ")\\E; rigidwarp scenes lists the scenes\\n\\z")).
+
+%% Every scene's entry: a line with its file, bodies, duration and start
+%% box, then its whole description indented; the Bouncing scenes differ.
 scenes_lists_bundled(_Config) ->
     {0, Out, _} = rw_test_lib:run_escript(["scenes"]),
-    ?assertMatch({match, _}, re:run(Out, "head_on_elastic.json +2 bodies +1000 ms  [A-Z]")).
+    ct:log("~s", [Out]),
+    Lines = binary:split(string:trim(Out, trailing), <<"\n">>, [global]),
+    [?assert(string:length(L) =< 100) || L <- Lines],
+    Entries = entries(Lines),
+    Files = [filename:basename(F) || F <- filelib:wildcard(filename:join([rw_test_lib:root(), "scenarios", "*.json"]))],
+    ?assertEqual(lists:sort(Files), lists:sort([binary_to_list(F) || {F, _, _} <- Entries])),
+    [begin
+         {ok, Bin} = file:read_file(rw_test_lib:scenario(binary_to_list(F))),
+         #{<<"description">> := D} = jiffy:decode(Bin, [return_maps]),
+         ?assertEqual(lists:join(" ", string:lexemes(D, " ")), lists:join(" ", Desc))
+     end || {F, _, Desc} <- Entries],
+    Head = fun(F) -> {F, H, _} = lists:keyfind(F, 1, Entries), H end,
+    ?assertMatch({match, _}, re:run(Head(<<"head_on_elastic.json">>), "^ +2 bodies +1000 ms  in \\[-?[0-9.]+,")),
+    [?assertMatch({match, _}, re:run(Head(F), "^ +1 body +[0-9]+ ms  at \\[[-0-9.]+,[-0-9.]+,[-0-9.]+\\]$"))
+     || F <- [<<"projectile.json">>, <<"ball_drop.json">>, <<"fast_thin_wall.json">>]],
+    Bouncing = [H || {<<"bouncing_", _/binary>>, H, _} <- Entries],
+    ?assert(length(Bouncing) >= 7),
+    ?assertEqual(length(Bouncing), length(lists:usort(Bouncing))).
+
+%% The scene list as {File, RestOfFirstLine, DescriptionWords}.
+entries([]) -> [];
+entries([First | Rest]) ->
+    {Desc, More} = lists:splitwith(fun(<<"    ", _/binary>>) -> true; (_) -> false end, Rest),
+    [File, Head] = binary:split(First, <<" ">>),
+    [{File, Head, lists:append([string:lexemes(D, " ") || D <- Desc])} | entries(More)].
+
+%% run_escript/1 from Cwd (with Env), stopped after TimeoutS seconds (exit 124).
+run_escript_in(Cwd, Args, TimeoutS) -> run_escript_in(Cwd, [], Args, TimeoutS).
+
+run_escript_in(Cwd, Env, Args, TimeoutS) ->
+    Err = filename:join(string:trim(os:cmd("mktemp -d")), "stderr"),
+    Cmd = lists:flatten(["exec ", os:find_executable("timeout"), " ", integer_to_list(TimeoutS), " ",
+                         sh_quote(rw_test_lib:escript()), [[" ", sh_quote(A)] || A <- Args], " 2>", sh_quote(Err)]),
+    Port = open_port({spawn_executable, "/bin/sh"}, [{args, ["-c", Cmd]}, {env, Env}, exit_status, binary, stream,
+                                                     {cd, Cwd}]),
+    {Code, Out} = collect(Port, []),
+    {ok, ErrBin} = file:read_file(Err),
+    ok = file:del_dir_r(filename:dirname(Err)),
+    {Code, Out, ErrBin}.
+
+sh_quote(S) -> "'" ++ lists:flatten(string:replace(S, "'", "'\\''", all)) ++ "'".
+
+collect(Port, Acc) ->
+    receive
+        {Port, {data, D}} -> collect(Port, [Acc, D]);
+        {Port, {exit_status, S}} -> {S, iolist_to_binary(Acc)}
+    end.
 
 %%% The bad-input corpus (test/bad_input): for each broken scene, exit code
 %%% 2, one line on stderr with the JSON path and the problem, nothing on
@@ -270,6 +401,113 @@ snapshot_png(Config) ->
     ok = file:write_file(Frames, <<"{\"t\":0,\"bodies\":[]}\nnot json\n">>),
     {2, _, Err} = rw_test_lib:run_escript(["snapshot", Frames, "--scene", Scene, "--at", "0", "--out", Png]),
     ?assertMatch({match, _}, re:run(Err, ":2: not a frame line")).
+
+%% Frames shown with a scene that did not make them, and --at outside the
+%% file's times, are refused at once: exit 2, one line, no server started,
+%% no gnuplot needed (it is off the PATH here).
+frames_must_match_scene(Config) ->
+    Dir = ?config(priv_dir, Config),
+    Frames = fun(Scene, Name, Flags) ->
+                     Out = filename:join(Dir, Name),
+                     {0, _, _} = rw_test_lib:run_escript(["run", Scene, "--quiet", "--frames", Out | Flags]),
+                     Out
+             end,
+    HeadOn = rw_test_lib:scenario("head_on_elastic.json"),
+    NewtonsCradle = rw_test_lib:scenario("newtons_cradle.json"),
+    Head = Frames(HeadOn, "head.jsonl", ["--until", "300"]),
+    Cradle = Frames(NewtonsCradle, "cradle.jsonl", ["--until", "300"]),
+    {ok, HeadBin} = file:read_file(Head),
+    [First | _] = binary:split(HeadBin, <<"\n">>, [global]),
+    #{<<"bodies">> := [A, _]} = FirstFrame = jiffy:decode(First, [return_maps]),
+    OneBody = filename:join(Dir, "one.jsonl"),
+    ok = file:write_file(OneBody, [jiffy:encode(FirstFrame#{<<"bodies">> := [A]}), $\n, HeadBin]),
+    Twice = filename:join(Dir, "twice.jsonl"),
+    ok = file:write_file(Twice, [jiffy:encode(FirstFrame#{<<"bodies">> := [A, A]}), $\n]),
+    Png = filename:join(Dir, "never.png"),
+    Path = no_gnuplot_path(Dir),
+    Cases = [{["view", Head, "--scene", NewtonsCradle, "--port", "0"],
+              Head ++ ": body a in the frame at t=0 ms is not a dynamic body of " ++ NewtonsCradle ++
+              " (the frame has 2 bodies, the scene 5): frames of another scene?"},
+             {["snapshot", Cradle, "--scene", HeadOn, "--at", "100", "--out", Png],
+              Cradle ++ ": body b0 in the frame at t=0 ms is not a dynamic body of " ++ HeadOn ++
+              " (the frame has 5 bodies, the scene 2)"},
+             {["view", OneBody, "--scene", HeadOn, "--port", "0"],
+              OneBody ++ ": the frame at t=0 ms has 1 body, " ++ HeadOn ++ " has 2 bodies"},
+             {["snapshot", Twice, "--scene", HeadOn, "--at", "0", "--out", Png],
+              Twice ++ ": the frame at t=0 ms lacks body b of " ++ HeadOn},
+             {["snapshot", Head, "--scene", HeadOn, "--at", "99999", "--out", Png],
+              "--at 99999 is outside the times of " ++ Head ++ ": 0..300 ms"},
+             {["view", Head, "--scene", "newtons_cradle", "--port", "0"],
+              Head ++ ": body a in the frame at t=0 ms is not a dynamic body of scenarios/newtons_cradle.json"},
+             {["view", Head, "--scene", "no_such_scene", "--port", "0"], "no_such_scene: no such scene"}],
+    [begin
+         T0 = erlang:monotonic_time(millisecond),
+         {Code, Out, Err} = run_escript_in(rw_test_lib:root(), [{"PATH", Path}], Args, 30),
+         Ms = erlang:monotonic_time(millisecond) - T0,
+         ct:log("~p -> ~b in ~b ms~n~s", [Args, Code, Ms, Err]),
+         ?assertEqual({2, <<>>}, {Code, Out}),
+         ?assertMatch([_], binary:split(string:trim(Err), <<"\n">>, [global])),
+         ?assertMatch({match, _}, re:run(Err, "^rigidwarp: \\Q" ++ Expect ++ "\\E")),
+         ?assert(Ms < 10000)
+     end || {Args, Expect} <- Cases],
+    ?assertNot(filelib:is_file(Png)),
+    %% the frames of a scene with a time inside the file are fine (and gnuplot is missing)
+    {1, <<>>, NoGnuplot} = run_escript_in(rw_test_lib:root(), [{"PATH", Path}],
+                                          ["snapshot", Head, "--scene", HeadOn, "--at", "300", "--out", Png], 30),
+    ?assertMatch({match, _}, re:run(NoGnuplot, "snapshot needs gnuplot")).
+
+%% A directory for PATH with what the escript needs and no gnuplot.
+no_gnuplot_path(Dir) ->
+    Bin = filename:join(Dir, "bin"),
+    ok = filelib:ensure_dir(filename:join(Bin, "x")),
+    [begin
+         Link = filename:join(Bin, Cmd),
+         _ = file:delete(Link),
+         ok = file:make_symlink(os:find_executable(Cmd), Link)
+     end || Cmd <- ["escript", "erl", "dirname", "basename", "sed"]],
+    Bin.
+
+%% view --live: run's progress line on stderr, run's summary on stdout when
+%% the run ends (keys in run's order), and the viewer serves on after it.
+live_view_reports(Config) ->
+    ErrFile = filename:join(?config(priv_dir, Config), "live.stderr"),
+    Cmd = lists:flatten(["exec ", sh_quote(rw_test_lib:escript()), " view --live ",
+                         sh_quote(rw_test_lib:scenario("head_on_elastic.json")), " --until 500 --port 0 2>",
+                         sh_quote(ErrFile)]),
+    Port = open_port({spawn_executable, "/bin/sh"}, [{args, ["-c", Cmd]}, {line, 1 bsl 16}, binary, exit_status,
+                                                     {cd, rw_test_lib:root()}]),
+    {os_pid, OsPid} = erlang:port_info(Port, os_pid),
+    try
+        [Url, Summary] = read_lines(Port, 2),
+        {match, [PortNum]} = re:run(Url, "^http://127.0.0.1:([0-9]+)/$", [{capture, all_but_first, list}]),
+        {0, Run, _} = rw_test_lib:run_escript(["run", rw_test_lib:scenario("head_on_elastic.json"), "--until", "500",
+                                                "--quiet"]),
+        ?assertEqual(summary_keys(Run), summary_keys(Summary)),
+        ?assertMatch(#{<<"scene">> := <<"head_on_elastic">>, <<"engine">> := <<"timewarp">>, <<"bodies">> := 2,
+                       <<"sim_ms">> := 500, <<"frames">> := 51, <<"gvt">> := 500},
+                     jiffy:decode(Summary, [return_maps])),
+        {ok, Sock} = gen_tcp:connect("127.0.0.1", list_to_integer(PortNum), [binary, {active, false}], 5000),
+        ok = gen_tcp:close(Sock),
+        {ok, Err} = file:read_file(ErrFile),
+        ct:log("~s~n~s", [Summary, Err]),
+        [Viewer | Progress] = binary:split(string:trim(Err), <<"\n">>, [global]),
+        ?assertMatch({match, _}, re:run(Viewer, "^rigidwarp: viewer at http")),
+        ?assertNotEqual([], Progress),
+        [?assertMatch({match, _}, re:run(L, "^rigidwarp: t=[0-9]+/500 ms  realtime x[0-9.]+  GVT lag [0-9]+ ms  "
+                                            "rollbacks [0-9]+")) || L <- Progress],
+        ?assertMatch({match, _}, re:run(lists:last(Progress), "t=500/500 ms.*ETA 0.0 s"))
+    after
+        os:cmd("kill " ++ integer_to_list(OsPid)),
+        receive {Port, {exit_status, _}} -> ok after 10000 -> ok end
+    end.
+
+read_lines(_Port, 0) -> [];
+read_lines(Port, N) ->
+    receive
+        {Port, {data, {eol, Line}}} -> [Line | read_lines(Port, N - 1)];
+        {Port, {exit_status, S}} -> error({exited, S})
+    after 60000 -> error(no_line)
+    end.
 
 %% The shell API answers bad arguments with {error, Message}, starting nothing.
 shell_api_rejects_bad_arguments(_Config) ->

@@ -1,11 +1,10 @@
-%% The `rigidwarp` escript: batch runs of scene files.
+%% The `rigidwarp` escript: its commands, their help text and exit codes.
 %% Exit codes: 0 ok, 2 bad input (flags or scene), 1 runtime failure.
 -module(rw_cli).
 -export([main/1]).
--include_lib("rigidwarp/include/rigidwarp.hrl").
 
 -define(RUN_HELP,
-"  run SCENE.json [options]   run a scene; the summary JSON is the last line on stdout
+"  run SCENE [options]        run a scene; the summary JSON is the last line on stdout
       --engine ENGINE        timewarp (default, parallel) or reference (sequential oracle)
       --schedulers N         scheduler threads for the timewarp engine (default: all cores)
       --buckets N            TVHT bucket processes (default: the scene's buckets, else 64)
@@ -24,30 +23,44 @@
                              (default on; off is the paper's one entity per body)
       --group-max N          timewarp: the most bodies in one contact group (default 64)
       --quiet                no progress line on stderr
+      the summary's keys in this order (those the run has; any others follow, sorted):
+                             scene, engine, bodies, substep_ms, stride_ms, sim_ms, wall_ms,
+                             realtime_factor, frames, then
+                             timewarp: events, antievents, rollbacks, primary_rollbacks,
+                             secondary_rollbacks, rolled_back_substeps, computed_substeps,
+                             committed_substeps, efficiency, steps, regroups, restarts,
+                             resumed_from_ms, start_ms, end_ms, gvt, max_lvt;
+                             reference: substeps, body_substeps, pair_contacts, fixture_contacts,
+                             resumed_from_ms
 ").
 -define(VALIDATE_HELP,
-"  validate SCENE.json        check a scene file and say what is wrong with it
+"  validate SCENE             check a scene and say what is wrong with it
 ").
 -define(SCENES_HELP,
-"  scenes [DIR]               list the scenes in DIR (default: scenarios), one line each
+"  scenes [DIR]               list the scenes in DIR (default: the scenarios directory where
+                             SCENE names are looked up): file, bodies, duration in ms, the box
+                             the bodies start in, then the whole description
 ").
 -define(VIEW_HELP,
-"  view FRAMES.jsonl --scene SCENE.json [--port N]
+"  view FRAMES.jsonl --scene SCENE [--port N]
                              serve the 3D viewer on http://127.0.0.1:N/ (default 8765)
-                             playing back a frames file written by run --frames
-  view --live SCENE.json [run options] [--port N]
-                             run the scene on the timewarp engine and watch it live
+                             playing back a frames file written by run --frames of SCENE
+                             (frames of other bodies are refused)
+  view --live SCENE [run options] [--port N]
+                             run the scene on the timewarp engine and watch it live, with
+                             run's progress line on stderr and its summary on stdout at the
+                             end; the viewer serves on until Ctrl-C
 ").
 -define(SNAPSHOT_HELP,
-"  snapshot FRAMES.jsonl --scene SCENE.json --at MS --out FILE.png
+"  snapshot FRAMES.jsonl --scene SCENE --at MS --out FILE.png
                              a picture of the frame at MS (front view, x right, y up;
-                             gnuplot), without a browser
+                             gnuplot), without a browser; MS within the file's times
 ").
 -define(BENCH_HELP,
 "  bench accuracy [options]   speed versus accuracy: sweeps substep, stride, integrator and CCD
                              over analytic scenes, measured against their exact solution;
                              a table on stdout, a CSV file and a Pareto plot (gnuplot)
-      --scenes A,B           scene names (scenarios/NAME.json) or files, each optionally
+      --scenes A,B           scenes (files or NAMEs, as SCENE below), each optionally
                              NAME:MS to end at MS (default: projectile, ball_drop,
                              head_on_elastic, newtons_cradle, fast_thin_wall, bouncing_50_250:1000)
       --until MS             end time of the scenes without their own (default: duration_ms)
@@ -64,13 +77,22 @@
                              bodies do) on 1 and then 2 schedulers, N alternating pairs
                              (default 3); one JSON line (the 2-core floor is judged against it)
 ").
+-define(VERSION_HELP,
+"  version, --version         the rigidwarp version and the Erlang/OTP release it runs on
+").
+-define(SCENE_HELP,
+"SCENE is a scene file, or the NAME of one: scenarios/NAME.json in the current directory, else
+in the rigidwarp checkout whose _build/PROFILE/bin holds this escript (rigidwarp scenes lists them)
+").
 -define(USAGE,
 "usage: rigidwarp <command> [options]
 
 commands:
 " ?RUN_HELP ?VALIDATE_HELP ?SCENES_HELP ?VIEW_HELP ?SNAPSHOT_HELP ?BENCH_HELP
+?VERSION_HELP
 "  help                       this text; rigidwarp COMMAND --help for one command
 
+" ?SCENE_HELP "
 exit codes: 0 ok, 1 runtime failure, 2 bad input (the message names the field or flag)
 ").
 
@@ -82,10 +104,10 @@ main(Args) ->
     Code = try dispatch(Args)
            catch
                throw:{usage, Msg} ->
-                   io:format(standard_error, "rigidwarp: ~ts~n(see rigidwarp help)~n", [Msg]),
+                   io:format(standard_error, "rigidwarp: ~ts (see rigidwarp help)~n", [rw_cli_report:one_line(Msg)]),
                    2;
                throw:{bad_input, Msg} ->
-                   io:format(standard_error, "rigidwarp: ~ts~n", [Msg]),
+                   io:format(standard_error, "rigidwarp: ~ts~n", [rw_cli_report:one_line(Msg)]),
                    2;
                error:terminated ->
                    %% stdout was closed (`rigidwarp scenes | head`): stop quietly,
@@ -100,61 +122,53 @@ main(Args) ->
 dispatch([]) -> io:put_chars(standard_error, ?USAGE), 2;
 dispatch([Help | _]) when Help =:= "help"; Help =:= "--help"; Help =:= "-h" ->
     io:put_chars(?USAGE), 0;
+dispatch(["--version" | Args]) -> command("version", Args);
 dispatch([Cmd | Args]) ->
     case lists:member("--help", Args) orelse lists:member("-h", Args) of
-        true -> io:put_chars(["usage: rigidwarp ", string:trim(command_help(Cmd), leading), "\n"]), 0;
+        true -> io:put_chars(["usage: rigidwarp ", string:trim(command_help(Cmd)), "\n"]), 0;
         false -> command(Cmd, Args)
     end.
 
-command_help("run") -> ?RUN_HELP;
-command_help("validate") -> ?VALIDATE_HELP;
+command_help("run") -> ?RUN_HELP "\n" ?SCENE_HELP;
+command_help("validate") -> ?VALIDATE_HELP "\n" ?SCENE_HELP;
 command_help("scenes") -> ?SCENES_HELP;
-command_help("view") -> ?VIEW_HELP;
-command_help("snapshot") -> ?SNAPSHOT_HELP;
+command_help("view") -> ?VIEW_HELP "\n" ?SCENE_HELP;
+command_help("snapshot") -> ?SNAPSHOT_HELP "\n" ?SCENE_HELP;
 command_help("bench") -> ?BENCH_HELP;
+command_help("version") -> ?VERSION_HELP;
 command_help(Cmd) -> throw({usage, "unknown command " ++ Cmd}).
 
 command("run", Args) -> run(Args, rw_cli_args:parse(Args));
-command("validate", [File]) ->
+command("validate", [Arg]) ->
+    File = rw_cli_scene:resolve(Arg),
     case rigidwarp:load(File, #{}) of
         {ok, _} -> io:format("~ts: ok~n", [File]), 0;
         {error, Msg} -> throw({bad_input, Msg})
     end;
 command("validate", _) -> throw({usage, "validate takes exactly one scene file"});
-command("scenes", []) -> scenes("scenarios");
-command("scenes", [Dir]) -> scenes(Dir);
+command("scenes", []) -> rw_cli_scene:list(default);
+command("scenes", [Dir]) -> rw_cli_scene:list(Dir);
 command("scenes", _) -> throw({usage, "scenes takes at most one directory"});
 command("view", Args) -> rw_cli_view:view(Args);
 command("snapshot", Args) -> rw_cli_view:snapshot(Args);
 command("bench", Args) -> rw_cli_bench:bench(Args);
+command("version", []) -> io:format("~ts~n", [version()]), 0;
+command("version", [Extra | _]) -> throw({usage, "version takes no arguments, got " ++ Extra});
 command(Cmd, _) -> throw({usage, "unknown command " ++ Cmd}).
 
-scenes(Dir) ->
-    Files = lists:sort(filelib:wildcard(filename:join(Dir, "*.json"))),
-    Files =:= [] andalso throw({bad_input, "no scene files in " ++ Dir}),
-    [case rigidwarp:load(F, #{}) of
-         {ok, #scene{spheres = Spheres} = S} ->
-             io:format("~-24ts ~5b bodies  ~5s ms  ~ts~n",
-                       [filename:basename(F), length(Spheres), rw_cli_args:format_ms(rw_scene:duration_ms(S)),
-                        summary_line(F)]);
-         {error, Msg} -> io:format("~-24ts INVALID: ~ts~n", [filename:basename(F), Msg])
-     end || F <- Files],
-    0.
+%% The rigidwarp application's vsn, read from its .app (in the escript's
+%% archive, as anywhere else), and the OTP release and runtime.
+version() ->
+    _ = application:load(rigidwarp),
+    Vsn = case application:get_key(rigidwarp, vsn) of
+              {ok, V} -> V;
+              undefined -> "unknown"
+          end,
+    io_lib:format("rigidwarp ~ts (Erlang/OTP ~ts, erts ~ts)",
+                  [Vsn, erlang:system_info(otp_release), erlang:system_info(version)]).
 
-%% A scene's description, cut to fit a line.
-summary_line(File) ->
-    {ok, Bin} = file:read_file(File),
-    case jiffy:decode(Bin, [return_maps]) of
-        #{<<"description">> := D} when is_binary(D) ->
-            Text = unicode:characters_to_list(D),
-            case string:length(Text) > 80 of
-                true -> string:slice(Text, 0, 77) ++ "...";
-                false -> Text
-            end;
-        _ -> ""
-    end.
-
-run(Args, {File, Opts, Quiet}) ->
+run(Args, {Arg, Opts, Quiet}) ->
+    File = rw_cli_scene:resolve(Arg),
     %% from the start, so that no signal meets OTP's default handler
     ok = rw_cli_signals:install(self()),
     %% a bad frames path is refused before anything is loaded or created
@@ -175,7 +189,7 @@ run(Args, {File, Opts, Quiet}) ->
     Total = rw_scene:duration_ms(Scene),
     {Progress, Finish} = case Quiet of
                              true -> {#{}, fun() -> ok end};
-                             false -> progress(Total, is_terminal())
+                             false -> rw_cli_report:progress(Total, rw_cli_report:is_terminal())
                          end,
     Result = try
                  rigidwarp:run_scene(Scene, maps:merge(Opts, Progress))
@@ -192,13 +206,13 @@ run(Args, {File, Opts, Quiet}) ->
              end,
     case Result of
         {ok, Summary} ->
-            io:put_chars([jiffy:encode(Summary), $\n]),
+            io:put_chars([rw_cli_report:summary_json(Summary), $\n]),
             0;
         {error, {interrupted, Signal, LastMs}} ->
             io:format(standard_error, "~ts~n", [interrupted(Args, Frames, LastMs)]),
             rw_cli_signals:exit_code(Signal);
         {error, Reason} ->
-            io:format(standard_error, "rigidwarp: ~ts~n", [rigidwarp:format_error(Reason)]),
+            io:format(standard_error, "rigidwarp: ~ts~n", [rw_cli_report:one_line(rigidwarp:format_error(Reason))]),
             1
     end.
 
@@ -223,49 +237,4 @@ interrupted(Args, Frames, LastMs) ->
                 {error, _} ->
                     [At, " (frames to ", Path, " cannot be resumed)"]
             end
-    end.
-
-%% The progress line on stderr: redrawn in place (4 times a second) on a
-%% terminal, a plain line every 2 s otherwise (CI logs, pipes), and always
-%% a last one at the end.
-progress(Total, Tty) ->
-    Key = {?MODULE, progress},
-    put(Key, {undefined, ""}),
-    Every = case Tty of true -> 250; false -> 2000 end,
-    Fun = fun(#{gvt := G, wall_ms := Wall} = P) ->
-                  Now = erlang:monotonic_time(millisecond),
-                  {Last, _} = get(Key),
-                  case Last =:= undefined orelse Now - Last >= Every orelse G >= Total of
-                      true ->
-                          Line = progress_line(Total, P, Wall),
-                          put(Key, {Now, Line}),
-                          case Tty of
-                              true -> io:put_chars(standard_error, ["\r\e[K", Line]);
-                              false -> io:put_chars(standard_error, [Line, $\n])
-                          end;
-                      false -> ok
-                  end
-          end,
-    Finish = fun() -> Tty andalso element(2, get(Key)) =/= "" andalso io:put_chars(standard_error, "\n"), ok end,
-    {#{on_progress => Fun}, Finish}.
-
-progress_line(Total, #{gvt := G, realtime_factor := Rt} = P, Wall) ->
-    Eta = case G > 0 of
-              true -> io_lib:format("  ETA ~.1f s", [(Total - G) * Wall / G / 1000]);
-              false -> ""
-          end,
-    Engine = case P of
-                 #{max_lvt := MaxLvt, rollbacks := Rb} ->
-                     io_lib:format("  GVT lag ~s ms  rollbacks ~b", [rw_cli_args:format_ms(max(0, MaxLvt - G)), Rb]);
-                 _ -> ""
-             end,
-    lists:flatten(io_lib:format("rigidwarp: t=~s/~s ms  realtime x~.2f~s~s",
-                                [rw_cli_args:format_ms(max(G, 0)), rw_cli_args:format_ms(Total), float(Rt), Engine, Eta])).
-
-%% stderr on a terminal? (io:columns/0 cannot tell in an escript on OTP 25.)
-is_terminal() ->
-    case file:read_link("/proc/" ++ os:getpid() ++ "/fd/2") of
-        {ok, "/dev/pts/" ++ _} -> true;
-        {ok, "/dev/tty" ++ _} -> true;
-        _ -> false
     end.

@@ -75,18 +75,13 @@ dedup(L) -> lists:reverse(lists:foldl(fun(X, Acc) -> case lists:member(X, Acc) o
                                                          false -> [X | Acc]
                                                      end end, [], L)).
 
-%% NAME (scenarios/NAME.json) or a file, each with an optional :UNTIL_MS.
+%% NAME or a file (rw_cli_scene:resolve/1), each with an optional :UNTIL_MS.
 scenes(Flag, V) ->
     [case string:split(Item, ":", trailing) of
-         [Name, Ms] when Name =/= "" -> {scene_file(Name), rw_cli_args:pos_ms(Flag ++ " " ++ Name ++ ":", Ms)};
-         _ -> scene_file(Item)
+         [Name, Ms] when Name =/= "" ->
+             {rw_cli_scene:resolve(Name), rw_cli_args:pos_ms(Flag ++ " " ++ Name ++ ":", Ms)};
+         _ -> rw_cli_scene:resolve(Item)
      end || Item <- items(Flag, V)].
-
-scene_file(Name) ->
-    case lists:suffix(".json", Name) orelse lists:member($/, Name) of
-        true -> Name;
-        false -> filename:join("scenarios", Name ++ ".json")
-    end.
 
 %%% The run
 
@@ -112,7 +107,8 @@ accuracy(#{out := Csv, plot := Png, quiet := Quiet} = Opts) ->
                     io:format(standard_error, "rigidwarp: wrote ~ts and ~ts~n", [Csv, Png]),
                     0;
                 {error, Why} ->
-                    io:format(standard_error, "rigidwarp: wrote ~ts; gnuplot failed: ~ts~n", [Csv, Why]),
+                    io:format(standard_error, "rigidwarp: wrote ~ts; gnuplot failed: ~ts~n",
+                              [Csv, rw_cli_report:one_line(Why)]),
                     1
             end
     end.

@@ -11,32 +11,86 @@ view(Args) ->
                   undefined -> 8765;
                   P -> port("--port", P)
               end,
-    Source = case Rest of
-                 ["--live" | RunArgs] ->
-                     {File, Opts, _Quiet} = rw_cli_args:parse(RunArgs),
-                     maps:get(engine, Opts, timewarp) =:= timewarp
-                         orelse throw({usage, "view --live runs the timewarp engine only"}),
-                     maps:is_key(frames, Opts) andalso throw({usage, "view --live does not take --frames"}),
-                     ok = rw_viewer:prepare(),
-                     case rigidwarp:start(File, maps:without([engine], Opts)) of
-                         {ok, Sim} -> {live, Sim};
-                         {error, Msg} -> throw({bad_input, Msg})
-                     end;
-                 _ ->
-                     {FramesFile, SceneFile} = frames_and_scene(Rest, "view"),
-                     Scene = load_scene(SceneFile),
-                     {playback, Scene, load_frames(FramesFile)}
-             end,
+    case Rest of
+        ["--live" | RunArgs] ->
+            live(RunArgs, PortNum);
+        _ ->
+            {FramesFile, SceneFile} = frames_and_scene(Rest, "view"),
+            Scene = load_scene(SceneFile),
+            Frames = load_frames(FramesFile),
+            ok = check_frames(Scene, Frames, FramesFile, SceneFile),
+            case serve({playback, Scene, Frames}, PortNum) of
+                ok -> receive after infinity -> 1 end;
+                failed -> 1
+            end
+    end.
+
+%% view --live: the run goes on in the background while the viewer serves;
+%% this process follows it with run's progress line and prints run's
+%% summary when it ends, then the viewer serves on.
+live(RunArgs, PortNum) ->
+    {Arg, Opts, Quiet} = rw_cli_args:parse(RunArgs),
+    File = rw_cli_scene:resolve(Arg),
+    maps:get(engine, Opts, timewarp) =:= timewarp
+        orelse throw({usage, "view --live runs the timewarp engine only"}),
+    maps:is_key(frames, Opts) andalso throw({usage, "view --live does not take --frames"}),
+    RunOpts = maps:without([engine], Opts),
+    Scene = case rigidwarp:load(File, RunOpts) of
+                {ok, S} -> S;
+                {error, Msg} -> throw({bad_input, Msg})
+            end,
+    ok = rw_viewer:prepare(),
+    Sim = case rigidwarp:start(File, RunOpts) of
+              {ok, Started} -> Started;
+              {error, Msg1} -> throw({bad_input, Msg1})
+          end,
+    case serve({live, Sim}, PortNum) of
+        ok ->
+            {OnProgress, Finish} = case Quiet of
+                                       true -> {fun(_) -> ok end, fun() -> ok end};
+                                       false ->
+                                           {#{on_progress := F}, Fin} =
+                                               rw_cli_report:progress(rw_scene:duration_ms(Scene),
+                                                                      rw_cli_report:is_terminal()),
+                                           {F, Fin}
+                                   end,
+            follow(Sim, Scene, OnProgress, Finish),
+            receive after infinity -> 1 end;
+        failed -> 1
+    end.
+
+%% The run's progress as often as the line is redrawn, until it ends
+%% (start/2 made this process its owner, which hears of the end).
+follow(Sim, Scene, OnProgress, Finish) ->
+    receive
+        {rw_done, _, _} ->
+            Stats = rigidwarp:stats(Sim),
+            OnProgress(Stats),
+            Finish(),
+            io:put_chars([rw_cli_report:summary_json(rw_cli_report:live_summary(Scene, Stats)), $\n]);
+        {rw_crashed, _, Who, Reason} ->
+            Finish(),
+            io:format(standard_error, "rigidwarp: ~ts; the viewer shows its frames so far~n",
+                      [rw_cli_report:one_line(rigidwarp:format_error({crashed, Who, Reason}))])
+    after 250 ->
+            case rigidwarp:stats(Sim) of
+                #{status := running} = Stats -> OnProgress(Stats);
+                _ -> ok
+            end,
+            follow(Sim, Scene, OnProgress, Finish)
+    end.
+
+serve(Source, PortNum) ->
     case rw_viewer:start(Source, #{port => PortNum}) of
         {ok, Server} ->
             Url = rw_viewer:url(Server),
             io:format("~s~n", [Url]),
             io:format(standard_error, "rigidwarp: viewer at ~s (~s); Ctrl-C to stop~n",
                       [Url, element(1, Source)]),
-            receive after infinity -> 1 end;
-        {error, Msg2} ->
-            io:format(standard_error, "rigidwarp: ~ts~n", [Msg2]),
-            1
+            ok;
+        {error, Msg} ->
+            io:format(standard_error, "rigidwarp: ~ts~n", [rw_cli_report:one_line(Msg)]),
+            failed
     end.
 
 -spec snapshot([string()]) -> 0 | 1.
@@ -50,10 +104,14 @@ snapshot(Args) ->
     {FramesFile, SceneFile} = frames_and_scene(R2, "snapshot"),
     Scene = load_scene(SceneFile),
     Frames = load_frames(FramesFile),
-    Frame = case [F || {frame, T, _} = F <- Frames, T =< AtMs] of
-                [] -> throw({bad_input, io_lib:format("--at: no frame at or before ~b ms in ~ts", [AtMs, FramesFile])});
-                Before -> lists:last(Before)
-            end,
+    ok = check_frames(Scene, Frames, FramesFile, SceneFile),
+    Times = [T || {frame, T, _} <- Frames],
+    {First, Last} = {lists:min(Times), lists:max(Times)},
+    AtMs >= First andalso AtMs =< Last orelse
+        throw({bad_input, io_lib:format("--at ~b is outside the times of ~ts: ~ts..~ts ms",
+                                        [AtMs, FramesFile, rw_cli_args:format_ms(First),
+                                         rw_cli_args:format_ms(Last)])}),
+    Frame = lists:last([F || {frame, T, _} = F <- Frames, T =< AtMs]),
     case os:find_executable("gnuplot") of
         false ->
             io:put_chars(standard_error, "rigidwarp: snapshot needs gnuplot (apt-get install gnuplot-nox)\n"),
@@ -61,6 +119,36 @@ snapshot(Args) ->
         Gnuplot ->
             plot(Gnuplot, Scene, Frame, Out)
     end.
+
+%% Frames that the scene did not make are refused before anything starts:
+%% every frame holds exactly the scene's dynamic bodies.
+check_frames(#scene{spheres = Spheres}, Frames, FramesFile, SceneFile) ->
+    Ids = lists:sort([Id || #sphere{id = Id} <- Spheres]),
+    Known = maps:from_keys(Ids, true),
+    lists:foreach(
+      fun({frame, T, Bodies}) ->
+              Have = [element(1, B) || B <- Bodies],
+              lists:sort(Have) =:= Ids orelse
+                  throw({bad_input, mismatch(T, Have, Ids, Known, FramesFile, SceneFile)})
+      end, Frames).
+
+mismatch(T, Have, Ids, Known, FramesFile, SceneFile) ->
+    At = rw_cli_args:format_ms(T),
+    case [Id || Id <- Have, not is_map_key(Id, Known)] of
+        [Stranger | _] ->
+            io_lib:format("~ts: body ~ts in the frame at t=~s ms is not a dynamic body of ~ts (the frame has ~s, "
+                          "the scene ~b): frames of another scene?",
+                          [FramesFile, Stranger, At, SceneFile, bodies(length(Have)), length(Ids)]);
+        [] when length(Have) =/= length(Ids) ->
+            io_lib:format("~ts: the frame at t=~s ms has ~s, ~ts has ~s: frames of another scene?",
+                          [FramesFile, At, bodies(length(Have)), SceneFile, bodies(length(Ids))]);
+        [] ->
+            [Missing | _] = Ids -- Have,
+            io_lib:format("~ts: the frame at t=~s ms lacks body ~ts of ~ts", [FramesFile, At, Missing, SceneFile])
+    end.
+
+bodies(1) -> "1 body";
+bodies(N) -> integer_to_list(N) ++ " bodies".
 
 %% A front view (x right, y up): every sphere a circle of its radius,
 %% cylinders along z as circles, planes as lines, boxes as rectangles.
@@ -87,7 +175,7 @@ plot(Gnuplot, #scene{name = Name, spheres = Spheres, fixtures = Fixtures}, {fram
     _ = file:del_dir_r(Dir),
     case filelib:is_regular(Out) of
         true -> io:format("~ts~n", [Out]), 0;
-        false -> io:format(standard_error, "rigidwarp: gnuplot failed: ~ts~n", [Result]), 1
+        false -> io:format(standard_error, "rigidwarp: gnuplot failed: ~ts~n", [rw_cli_report:one_line(Result)]), 1
     end.
 
 bounds(Xs, Ys, Fixtures, Pad) ->
@@ -125,7 +213,7 @@ plane_line(NX, NY, D) ->
 frames_and_scene(Args, Cmd) ->
     {Scene, Rest} = take_value("--scene", Args),
     case {Rest, Scene} of
-        {[Frames], S} when S =/= undefined -> {Frames, S};
+        {[Frames], S} when S =/= undefined -> {Frames, rw_cli_scene:resolve(S)};
         {_, undefined} -> throw({usage, Cmd ++ " needs --scene SCENE.json (the scene the frames came from)"});
         {[], _} -> throw({usage, Cmd ++ " needs a frames file"});
         {[[$- | _] = Flag | _], _} -> throw({usage, "unknown flag " ++ Flag});
