@@ -484,7 +484,7 @@ live_view_reports(Config) ->
                                                 "--quiet"]),
         ?assertEqual(summary_keys(Run), summary_keys(Summary)),
         ?assertMatch(#{<<"scene">> := <<"head_on_elastic">>, <<"engine">> := <<"timewarp">>, <<"bodies">> := 2,
-                       <<"sim_ms">> := 500, <<"frames">> := 51, <<"gvt">> := 500},
+                       <<"sim_ms">> := 500, <<"frames">> := 51, <<"committed_substeps">> := 1000},
                      jiffy:decode(Summary, [return_maps])),
         {ok, Sock} = gen_tcp:connect("127.0.0.1", list_to_integer(PortNum), [binary, {active, false}], 5000),
         ok = gen_tcp:close(Sock),

@@ -29,7 +29,7 @@
                              timewarp: events, antievents, rollbacks, primary_rollbacks,
                              secondary_rollbacks, rolled_back_substeps, computed_substeps,
                              committed_substeps, efficiency, steps, regroups, restarts,
-                             resumed_from_ms, start_ms, end_ms, gvt, max_lvt;
+                             resumed_from_ms;
                              reference: substeps, body_substeps, pair_contacts, fixture_contacts,
                              resumed_from_ms
 ").

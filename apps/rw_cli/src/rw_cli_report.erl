@@ -10,8 +10,8 @@
 %% order (cli_SUITE checks that it does).
 -define(COMMON_KEYS, [scene, engine, bodies, substep_ms, stride_ms, sim_ms, wall_ms, realtime_factor, frames]).
 -define(TIMEWARP_KEYS, [events, antievents, rollbacks, primary_rollbacks, secondary_rollbacks, rolled_back_substeps,
-                        computed_substeps, committed_substeps, efficiency, steps, regroups, restarts, resumed_from_ms,
-                        start_ms, end_ms, gvt, max_lvt]).
+                        computed_substeps, committed_substeps, efficiency, steps, regroups, restarts,
+                        resumed_from_ms]).
 -define(REFERENCE_KEYS, [substeps, body_substeps, pair_contacts, fixture_contacts, resumed_from_ms]).
 
 %% The progress line on stderr: redrawn in place (4 times a second) on a
@@ -87,7 +87,8 @@ key_order(Summary) ->
 live_summary(#scene{name = Name, substep = Dt, stride = Stride, frame = Frame, duration = End, spheres = Spheres} = Scene,
              #{wall_ms := Wall} = Stats) ->
     SimMs = rw_scene:duration_ms(Scene),
-    (maps:without([status], Stats))#{scene => Name, engine => timewarp, bodies => length(Spheres),
+    %% as run's summary: without the progress figures of a run under way
+    (maps:without([status, gvt, start_ms, end_ms, max_lvt], Stats))#{scene => Name, engine => timewarp, bodies => length(Spheres),
                                      substep_ms => rw_scene:ms(Scene, Dt), stride_ms => rw_scene:ms(Scene, Stride),
                                      sim_ms => SimMs, wall_ms => Wall, realtime_factor => SimMs / max(Wall, 0.001),
                                      frames => (End + Frame - 1) div Frame + 1}.
