@@ -36,20 +36,20 @@ viewer-test: build
 
 # The paper's Figures 7-10 on this machine, then `make accuracy` (minutes; not part of make test).
 # BENCH_MS: simulated ms per run (default 1000); BENCH_REPEATS (default 3).
-# The README's tables are doc/bench/tables.md (scripts/bench-tables).
+# doc/benchmarks.md is written by scripts/bench-tables (its text in doc/benchmarks.in.md).
 bench: build
 	@scripts/install-deps bench
 	ERL_FLAGS="$(VM_FLAGS)" BENCH_MS=$${BENCH_MS:-1000} BENCH_REPEATS=$${BENCH_REPEATS:-3} $(REBAR) ct --dir bench --suite rw_bench_SUITE
 	@scripts/plot-bench
 	$(ESCRIPT) bench accuracy
-	scripts/bench-tables > doc/bench/tables.md
+	scripts/bench-tables --out doc/benchmarks.md
 
 # Speed versus accuracy (about 2 minutes): substep x stride x integrator x CCD on the
 # analytic scenes against their exact solution; doc/bench/accuracy.csv and .png.
 accuracy: build
 	@scripts/install-deps bench
 	$(ESCRIPT) bench accuracy
-	scripts/bench-tables > doc/bench/tables.md
+	scripts/bench-tables --out doc/benchmarks.md
 
 # The first thing to try: a scene end to end with a progress line and a summary.
 run: build
