@@ -48,26 +48,27 @@ kill_9_and_resume_reference(Config) ->
           ?config(reference_wall, Config), 3, {4, 5, 6}).
 
 %% Kills runs Times times (the first run fresh, the next ones with
-%% --resume), each after a random part of the wall time the rest of the
-%% run should take (Wall for all of it), the first one late enough for a
-%% checkpoint to be there; after each kill FILE.part holds
+%% --resume), each once the frames file holds a random share of what is
+%% left to write, the first one late enough for a checkpoint to be there
+%% (kill_at/6); after each kill FILE.part holds
 %% whole frame lines, a prefix of the uninterrupted run's; a last --resume
 %% completes the run, byte for byte the uninterrupted one.
-kills(Config, Name, Args, Expected, Wall, Times, Seed) ->
+kills(Config, Name, Args, Expected, _Wall, Times, Seed) ->
     Dir = workdir(Config, Name),
     F = filename:join(Dir, "f.jsonl"),
     {ok, Want} = file:read_file(Expected),
-    End = list_to_integer(lists:nth(3, Args)),
     _ = rand:seed(exsss, Seed),
     Run = fun(K) -> ["run" | Args] ++ ["--frames", F] ++ [R || K > 1, R <- ["--resume"]] end,
     Rounds = [begin
                   From = checkpoint_ms(F),
-                  Left = case From of none -> 1.0; _ -> (End - From) / End end,
-                  Least = case K of 1 -> 0.6; _ -> 0.3 end,
-                  Delay = max(200, round(Wall * Left * (Least + (0.95 - Least) * rand:uniform()))),
+                  %% killed once the frames file holds a random share of what
+                  %% is left to write (the first run not before its first
+                  %% checkpoint), however fast the machine is at the time
+                  Offset = checkpoint_offset(F),
+                  Least = case K of 1 -> 0.3; _ -> 0.1 end,
+                  Target = Offset + round((byte_size(Want) - Offset) * (Least + (0.9 - Least) * rand:uniform())),
                   {Port, Pid} = start(Run(K), Dir),
-                  timer:sleep(Delay),
-                  os:cmd("kill -KILL " ++ Pid),
+                  Delay = kill_at(Port, Pid, F, Target, K =:= 1, erlang:monotonic_time(millisecond)),
                   case wait(Port) of
                       {137, _} ->
                           Part = case file:read_file(F ++ ".part") of
@@ -93,6 +94,32 @@ kills(Config, Name, Args, Expected, Wall, Times, Seed) ->
     ct:comment("~b of ~b kills survived, ~b runs resumed from a checkpoint", [Killed, Times, Resumed]),
     ct:pal("~b of ~b kills survived, ~b runs resumed from a checkpoint", [Killed, Times, Resumed]),
     ?assert(Killed >= 1 andalso Resumed >= 1).
+
+%% Kill the run behind Port once F's .part holds Target bytes (and, if
+%% asked, a checkpoint is there), unless it ends first: the ms it ran.
+kill_at(Port, Pid, F, Target, NeedCheckpoint, T0) ->
+    Ready = filelib:file_size(F ++ ".part") >= Target
+        andalso (not NeedCheckpoint orelse filelib:is_regular(F ++ ".checkpoint")),
+    receive
+        {Port, {exit_status, _}} = Exit -> self() ! Exit, erlang:monotonic_time(millisecond) - T0
+    after 0 ->
+            case Ready of
+                true ->
+                    os:cmd("kill -KILL " ++ Pid),
+                    erlang:monotonic_time(millisecond) - T0;
+                false ->
+                    timer:sleep(5),
+                    kill_at(Port, Pid, F, Target, NeedCheckpoint, T0)
+            end
+    end.
+
+%% The byte offset of the checkpoint beside F (where a resumed run starts
+%% writing), or 0.
+checkpoint_offset(F) ->
+    case file:read_file(F ++ ".checkpoint") of
+        {ok, B} -> maps:get(offset, binary_to_term(B));
+        {error, enoent} -> 0
+    end.
 
 %% The time of the checkpoint beside F, or none.
 checkpoint_ms(F) ->
