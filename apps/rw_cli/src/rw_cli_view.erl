@@ -7,8 +7,9 @@
 -spec view([string()]) -> 1.  % 1 if the server cannot start; otherwise it serves until killed
 view(Args) ->
     {Port, Rest} = take_value("--port", Args),
+    %% without --port, the viewer's own default (the viewer_port setting)
     PortNum = case Port of
-                  undefined -> 8765;
+                  undefined -> default;
                   P -> port("--port", P)
               end,
     case Rest of
@@ -81,7 +82,7 @@ follow(Sim, Scene, OnProgress, Finish) ->
     end.
 
 serve(Source, PortNum) ->
-    case rw_viewer:start(Source, #{port => PortNum}) of
+    case rw_viewer:start(Source, case PortNum of default -> #{}; _ -> #{port => PortNum} end) of
         {ok, Server} ->
             Url = rw_viewer:url(Server),
             io:format("~s~n", [Url]),
