@@ -148,7 +148,8 @@ plot(Gnuplot, Rows, Png) ->
                             "set logscale xy~nset grid~nset format y '10^{%L}'~n"
                             "set xlabel 'wall s per simulated s (1 / realtime factor)'~n"
                             "set ylabel 'largest position error (m)'~n"
-                            "set key below horizontal maxcols 3 samplen 1 spacing 1 font 'sans,8' noenhanced~n",
+                            "set key below horizontal maxcols 4 samplen 1 spacing 1 font 'sans,10' noenhanced~n"
+                            "set offsets graph 0.04, graph 0.04, graph 0.08, graph 0.08~n",
                             [560 * Cols, 520 * Lines + 40, Out, Lines, Cols, machine()]),
               Panels,
               "unset multiplot\n"],
@@ -174,15 +175,18 @@ plot_data(Dir, K, Scene, Rows) ->
     FrontRows = lists:sort(fun(#{realtime_factor := A}, #{realtime_factor := B}) -> A >= B end,
                            [R || #{pareto := true} = R <- Rows]),
     ok = file:write_file(Front, [Line(R) || R <- FrontRows]),
-    Series = [io_lib:format("'~ts' using 1:(($3 == ~b && $4 == ~b) ? $2 : 1/0) with points pt ~b ps 1.2 lc ~b"
-                            " title '~s, CCD ~s'",
-                            [Points, I, C, case C of 0 -> 6; 1 -> 7 end, I + 1, Name,
-                             case C of 0 -> "off"; 1 -> "on" end])
+    %% one legend, under the first panel: the series are the same in every panel
+    Title = fun(Text) when K =:= 1 -> io_lib:format("title '~s'", [Text]);
+               (_) -> "notitle"
+            end,
+    Series = [io_lib:format("'~ts' using 1:(($3 == ~b && $4 == ~b) ? $2 : 1/0) with points pt ~b ps 1.2 lc ~b ~s",
+                            [Points, I, C, case C of 0 -> 6; 1 -> 7 end, I + 1,
+                             Title(io_lib:format("~s, CCD ~s", [Name, case C of 0 -> "off"; 1 -> "on" end]))])
               || {I, Name} <- [{0, "symplectic Euler"}, {1, "Verlet"}, {2, "explicit Euler"}], C <- [0, 1]],
     [io_lib:format("set title '~ts' noenhanced~n", [Scene]),
      "plot ", lists:join(", \\\n     ", Series),
-     io_lib:format(", \\\n     '~ts' using 1:2 with linespoints lw 1.5 pt 4 ps 2 lc rgb 'black'"
-                   " title 'Pareto front'~n", [Front])].
+     io_lib:format(", \\\n     '~ts' using 1:2 with linespoints lw 1.5 pt 4 ps 2 lc rgb 'black' ~s~n",
+                   [Front, Title("Pareto front")])].
 
 integrator_index(symplectic_euler) -> 0;
 integrator_index(verlet) -> 1;
