@@ -156,7 +156,10 @@ plot(Gnuplot, Rows, Png) ->
     ScriptFile = filename:join(Dir, "plot.gp"),
     ok = file:write_file(ScriptFile, Script),
     Result = os:cmd(Gnuplot ++ " " ++ ScriptFile ++ " 2>&1"),
-    Done = case filelib:is_regular(Out) andalso filelib:ensure_dir(Png) =:= ok andalso file:copy(Out, Png) of
+    %% a script gnuplot stops in leaves a picture behind all the same
+    Failed = re:run(Result, "line [0-9]+: (?!warning)") =/= nomatch,
+    Done = case (not Failed) andalso filelib:is_regular(Out) andalso filelib:ensure_dir(Png) =:= ok
+               andalso file:copy(Out, Png) of
                {ok, _} -> ok;
                _ -> {error, string:trim(Result)}
            end,
