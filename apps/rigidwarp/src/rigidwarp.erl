@@ -156,7 +156,7 @@ start(File, Opts) when is_map(Opts) ->
                         {ok, Scene} ->
                             case rw_timewarp:start(Scene, (maps:with(?TIMEWARP_KEYS, Opts))#{owner => self()}) of
                                 {ok, Sim} -> {ok, Sim};
-                                {error, Reason} -> {error, describe_failure(Reason)}
+                                {error, Reason} -> {error, failure(Reason)}
                             end;
                         {error, _} = Error -> Error
                     end;
@@ -369,15 +369,11 @@ load_engine() ->
 -define(OUTPUT, {?MODULE, output}).
 
 open_output(Scene, #{frames := Path} = Opts) ->
-    Resume = maps:get(resume, Opts, false),
-    case rw_output:check(Path, Resume) of
-        ok ->
-            case rw_output:open(Path, rw_scene:fingerprint(Scene), Resume) of
-                {ok, Out, From} ->
-                    put(?OUTPUT, Out),
-                    {ok, From};
-                {error, _} = Error -> Error
-            end;
+    %% open/3 refuses what check/2 would, before it touches anything
+    case rw_output:open(Path, rw_scene:fingerprint(Scene), maps:get(resume, Opts, false)) of
+        {ok, Out, From} ->
+            put(?OUTPUT, Out),
+            {ok, From};
         {error, _} = Error -> Error
     end;
 open_output(_Scene, #{resume := true}) ->
@@ -447,11 +443,9 @@ failure({crashed, _, _} = Crash) -> Crash;
 failure({interrupted, _, _} = Interrupt) -> Interrupt;
 failure({raised, Class, Reason, Stack}) ->
     lists:flatten(io_lib:format("the run stopped: ~p:~0P in ~0P", [Class, Reason, 12, Stack, 8]));
+failure({schedulers, Message}) -> Message;
 failure(Message) when is_list(Message) -> Message;
-failure(Other) -> describe_failure(Other).
-
-describe_failure({schedulers, Message}) -> Message;
-describe_failure(Other) -> lists:flatten(io_lib:format("~0P", [Other, 20])).
+failure(Other) -> lists:flatten(io_lib:format("~0P", [Other, 20])).
 
 %% The engine's own counters, plus what every run reports (sim_ms: the
 %% simulated time this run computed, from its checkpoint when it resumed).

@@ -23,7 +23,7 @@
 -module(rw_gvt).
 -behaviour(gen_server).
 -include("rigidwarp.hrl").
--export([start_link/2, send_frames/1, gvt/1, wake_at/3, regroup_ack/3]).
+-export([start_link/2, send_frames/1, wake_at/3, regroup_ack/3]).
 -export([init/1, handle_call/3, handle_cast/2, handle_info/2]).
 -export_type([options/0]).
 
@@ -78,10 +78,6 @@ regroup_ack(Gvt, Pid, S) ->
     Gvt ! {regroup_ack, S, Pid},
     ok.
 
-%% GVT in ms (-1 before the first frame).
--spec gvt(pid()) -> number().
-gvt(Gvt) -> gen_server:call(Gvt, gvt).
-
 -spec init({#sim{}, options()}) -> {ok, #s{}}.
 init({#sim{scene = #scene{spheres = Spheres}, n = N, records = Records, ring = Ring, group_max = Max,
            grouping = Mode} = Sim, Opts}) ->
@@ -101,9 +97,11 @@ init({#sim{scene = #scene{spheres = Spheres}, n = N, records = Records, ring = R
             radii = maps:from_list([{I, R} || #sphere{idx = I, radius = R} <- Spheres]),
             groups = rw_regroup:new(Idxs, Max, Mode)}}.
 
--spec handle_call(term(), gen_server:from(), #s{}) -> {reply, term(), #s{}}.
-handle_call(gvt, _From, #s{gvt = G} = S) ->
-    {reply, ms(G, S), S}.
+%% GVT is read from the run (rw_run:gvt/1), which outlives this process.
+-spec handle_call(term(), gen_server:from(), #s{}) -> {reply, {error, unknown_call}, #s{}}.
+handle_call(Req, _From, S) ->
+    logger:warning("rw_gvt: unexpected call ~p", [Req]),
+    {reply, {error, unknown_call}, S}.
 
 -spec handle_cast(term(), #s{}) -> {noreply, #s{}}.
 handle_cast(send_frames, S) -> {noreply, S#s{frames = true}};

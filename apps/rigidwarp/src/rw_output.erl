@@ -71,17 +71,27 @@
 
 %% Whether frames can go to Path (and, with Resume, be resumed there).
 -spec check(file:name_all(), boolean()) -> ok | {error, string()}.
-check(Path0, Resume) ->
-    Path = name(Path0),
+check(Path, Resume) ->
+    case checked(name(Path), Resume) of
+        {ok, _} -> ok;
+        {error, _} = Error -> Error
+    end.
+
+%% What Path is (classify/1), once it has passed the checks.
+checked(Path, Resume) ->
     case classify(Path) of
         stdout when Resume -> {error, "--resume needs a frames file, not standard output (-)"};
-        stdout -> ok;
+        stdout -> {ok, stdout};
         {error, _} = Error -> Error;
         {in_place, _} when Resume ->
             fail(Path, "not a regular file, so there is nothing to resume");
-        {in_place, #file_info{access = A}} when A =:= write; A =:= read_write -> ok;
+        {in_place, #file_info{access = A}} = Class when A =:= write; A =:= read_write -> {ok, Class};
         {in_place, _} -> fail(Path, "not writable");
-        {part, Target, Info} -> check_part(Path, Target, Info, Resume)
+        {part, Target, Info} = Class ->
+            case check_part(Path, Target, Info, Resume) of
+                ok -> {ok, Class};
+                {error, _} = Error -> Error
+            end
     end.
 
 check_part(Path, Target, Info, Resume) ->
@@ -169,8 +179,8 @@ final_target(Path, N) ->
 -spec open(file:name_all(), binary(), boolean()) -> {ok, out(), fresh | checkpoint()} | {error, string()}.
 open(Path0, Fingerprint, Resume) when is_binary(Fingerprint), is_boolean(Resume) ->
     Path = name(Path0),
-    case check(Path, Resume) of
-        ok -> open_checked(Path, classify(Path), Fingerprint, Resume);
+    case checked(Path, Resume) of
+        {ok, Class} -> open_checked(Path, Class, Fingerprint, Resume);
         {error, _} = Error -> Error
     end.
 

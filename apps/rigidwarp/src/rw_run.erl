@@ -60,6 +60,7 @@
     watched = #{} :: #{reference() => {pid(), rw_sim_sup:who()}},
     restarts = [] :: [integer()],             % when, in the budget's period (monotonic ms)
     restarted = 0 :: non_neg_integer(),
+    start = 0 :: non_neg_integer(),           % where this run began, in ticks (its committed work counts from there)
     started :: integer(),                     % monotonic ms
     ended = none :: none | integer()
 }).
@@ -124,7 +125,7 @@ init({Scene, Opts}) ->
                    ring = ets:new(rw_frames, [set, public, {read_concurrency, true}]),
                    stats = rw_stats:new(), subs = maps:get(subscribers, Opts, []),
                    checkpoint = maps:get(from, Opts, none), started = erlang:monotonic_time(millisecond)},
-            case incarnate(R) of
+            case incarnate(R#r{start = restart_tick(R)}) of
                 {ok, R1} -> {ok, R1};
                 {error, Reason} -> {stop, Reason}
             end;
@@ -278,14 +279,11 @@ fault(Who, Reason, #r{opts = Opts} = R0) ->
     Recent = [T || T <- R#r.restarts, Now - T < Period],
     case length(Recent) < Max of
         true ->
-            From = case R#r.checkpoint of
-                       none -> rw_scene:ms(R#r.scene, R#r.scene#scene.start);
-                       {checkpoint, _, Ms, _} -> Ms
-                   end,
+            From = restart_tick(R),
             logger:warning("rigidwarp: ~ts: ~ts; restarting from the checkpoint at ~p ms (restart ~b of at most ~b "
-                           "in ~b ms)", [R#r.scene#scene.name, describe(Who, Reason), From, length(Recent) + 1, Max,
+                           "in ~b ms)", [R#r.scene#scene.name, describe(Who, Reason), ms(From, R), length(Recent) + 1, Max,
                                          Period]),
-            ok = rw_ring:truncate(R#r.ring, restart_tick(R)),
+            ok = rw_ring:truncate(R#r.ring, From),
             ok = rw_commits:keep_only(R#r.records, rw_ring:ticks(R#r.ring)),
             R1 = R#r{restarts = [Now | Recent], restarted = R#r.restarted + 1},
             case incarnate(R1) of
@@ -321,14 +319,10 @@ ms(T, #r{scene = Scene}) -> rw_scene:ms(Scene, T).
 
 tick(Ms, #scene{tick_us = U}) -> round(Ms * 1000 / U).
 
-stats_of(#r{scene = #scene{spheres = Spheres, substep = Dt, duration = End} = Scene, stats = Ref,
-            sim = Sim, started = T0} = R) ->
+stats_of(#r{scene = #scene{spheres = Spheres, substep = Dt, duration = End}, stats = Ref,
+            sim = Sim, started = T0, start = Start} = R) ->
     Profile = case Sim of #sim{profile = P} -> P; undefined -> false end,
     Raw = rw_stats:read(Ref, Profile),
-    Start = case maps:get(from, R#r.opts, none) of
-                none -> Scene#scene.start;
-                {checkpoint, S, _, _} -> S
-            end,
     G = gvt_tick(R),
     N = length(Spheres),
     Committed = N * (max(G, Start) - Start) div Dt,
