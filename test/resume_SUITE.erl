@@ -250,23 +250,34 @@ bad_output_paths(Config) ->
      end || {Flags, Problem} <- Cases],
     read_only_directory(Config, Long).
 
-%% Root may write anywhere, so an unwritable directory is tried as nobody.
-read_only_directory(Config, Args) ->
-    Dir = workdir(Config, "read_only"),
-    Ro = filename:join(Dir, "ro"),
-    ok = file:make_dir(Ro),
-    sh("chmod 0555 " ++ Ro ++ " && chmod 0777 " ++ Dir),
-    Cmd = lists:flatten(["exec setpriv --reuid=nobody --regid=nogroup --clear-groups ", quote(rw_test_lib:escript()),
-                         [[" ", quote(A)] || A <- ["run" | Args] ++ ["--frames", filename:join(Ro, "f.jsonl")]],
-                         " 2>", quote(filename:join(Dir, "stderr"))]),
-    Port = open_port({spawn_executable, "/bin/sh"}, [{args, ["-c", Cmd]}, exit_status, binary, stream, {cd, Dir}]),
-    {Code, _} = collect(Port, <<>>),
-    Err = stderr(Dir),
-    ct:pal("as nobody: ~b: ~ts", [Code, Err]),
-    ?assertEqual(2, Code),
-    ?assertMatch({match, _}, re:run(Err, "\\Arigidwarp: cannot write frames to .*/ro/f.jsonl: "
-                                         "cannot create files in directory .*/ro \\(permission denied\\)\n\\z")),
-    ?assertEqual({ok, []}, file:list_dir(Ro)).
+%% Root may write anywhere, so an unwritable directory is tried as nobody:
+%% from a directory of its own that nobody can reach (wherever the checkout
+%% is), with a copy of the escript and of the scene.
+read_only_directory(_Config, [Scene | Args]) ->
+    Dir = string:trim(os:cmd("mktemp -d")),
+    try
+        Ro = filename:join(Dir, "ro"),
+        ok = file:make_dir(Ro),
+        Escript = filename:join(Dir, "rigidwarp"),
+        {ok, _} = file:copy(rw_test_lib:escript(), Escript),
+        Copy = filename:join(Dir, "scene.json"),
+        {ok, _} = file:copy(Scene, Copy),
+        sh("chmod 0755 " ++ Dir ++ " " ++ Escript ++ " && chmod 0644 " ++ Copy ++ " && chmod 0555 " ++ Ro),
+        Err = filename:join(Dir, "stderr"),
+        Cmd = lists:flatten(["exec setpriv --reuid=nobody --regid=nogroup --clear-groups ", quote(Escript),
+                             [[" ", quote(A)] || A <- ["run", Copy | Args] ++ ["--frames", filename:join(Ro, "f.jsonl")]],
+                             " 2>", quote(Err)]),
+        Port = open_port({spawn_executable, "/bin/sh"}, [{args, ["-c", Cmd]}, exit_status, binary, stream, {cd, Dir}]),
+        {Code, _} = collect(Port, <<>>),
+        {ok, Message} = file:read_file(Err),
+        ct:pal("as nobody: ~b: ~ts", [Code, Message]),
+        ?assertEqual(2, Code),
+        ?assertMatch({match, _}, re:run(Message, "\\Arigidwarp: cannot write frames to .*/ro/f.jsonl: "
+                                                 "cannot create files in directory .*/ro \\(permission denied\\)\n\\z")),
+        ?assertEqual({ok, []}, file:list_dir(Ro))
+    after
+        _ = file:del_dir_r(Dir)
+    end.
 
 %% A device that is always full (/dev/full): the run fails with one line.
 full_disk(Config) ->
