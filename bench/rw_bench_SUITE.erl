@@ -12,7 +12,8 @@
 
 suite() -> [{timetrap, {hours, 3}}].
 
-all() -> [fig7_speedup, fig8_breakdown, fig9_density, fig10_stride, features, contact_vs_isolated, contact_groups].
+all() -> [fig7_speedup, fig8_breakdown, fig9_density, fig10_stride, features, contact_vs_isolated, contact_groups,
+          nodes_vs_schedulers].
 
 init_per_suite(Config) ->
     {ok, _} = application:ensure_all_started(rigidwarp),
@@ -170,6 +171,50 @@ contact_groups(Config) ->
               end || Name <- ["cylinders_200", "cylinders_500", "bouncing_500_250", "parallel_500"]]),
     write_csv("groups.csv", ["scene", "mode", "reductions", "wall_ms", "wall_min", "wall_max", "writes", "events",
                              "rollbacks", "regroups", "efficiency"], Rows).
+
+%%% One simulation over two nodes of one scheduler each (peer nodes on
+%%% this machine, talking over loopback TCP) against one node of two
+%%% schedulers, in alternating order within each repeat: realtime factors,
+%%% their ratio, what crossed between the nodes, and what that predicts
+%%% for more machines. The model: the two-node run's extra CPU time over
+%%% the one-node run's, divided by its cross-node messages, is a cost per
+%%% message (c); on k machines with slabs of space, the bodies' work
+%%% divides by k, and the cross-node messages grow with the k-1 borders
+%%% between slabs: wall_k = (W + c * M * (k-1)) / k, W the one-node run's
+%%% CPU time (2 x its wall), M the two-node run's messages.
+nodes_vs_schedulers(Config) ->
+    Rows = [begin
+                Scene = load(Name, Config),
+                Reps = [begin
+                            Order = case Rep rem 2 of 0 -> [one, two]; 1 -> [two, one] end,
+                            maps:from_list([{Which, on_nodes(Which, Scene)} || Which <- Order])
+                        end || Rep <- lists:seq(1, ?config(repeats, Config))],
+                One = [R || #{one := R} <- Reps],
+                Two = [R || #{two := R} <- Reps],
+                Ratios = [maps:get(realtime_factor, T) / maps:get(realtime_factor, O) || #{one := O, two := T} <- Reps],
+                SimS = ?config(ms, Config) / 1000,
+                Messages = median([maps:get(cross_node_messages, T) || T <- Two]),
+                Bytes = median([maps:get(cross_node_bytes, T) || T <- Two]),
+                %% CPU ms: two schedulers (or nodes) busy for the wall time
+                W1 = 2 * median([maps:get(wall_ms, O) || O <- One]),
+                W2 = 2 * median([maps:get(wall_ms, T) || T <- Two]),
+                PerMessageUs = max(0.0, (W2 - W1) * 1000 / max(1, Messages)),
+                Predict = fun(K) -> SimS * 1000 / ((W1 + PerMessageUs / 1000 * Messages * (K - 1)) / K) end,
+                [Name | stats([maps:get(realtime_factor, O) || O <- One]) ++ stats([maps:get(realtime_factor, T) || T <- Two])
+                 ++ stats(Ratios)] ++ [Messages / SimS, Bytes / SimS, PerMessageUs, Predict(4), Predict(8), Predict(16)]
+            end || Name <- ["parallel_200", "parallel_500", "cylinders_200", "cylinders_500", "bouncing_200_250",
+                            "bouncing_500_250"]],
+    write_csv("nodes.csv", ["scene", "rtf_1x2", "rtf_1x2_min", "rtf_1x2_max", "rtf_2x1", "rtf_2x1_min", "rtf_2x1_max",
+                            "ratio", "ratio_min", "ratio_max", "messages_per_s", "bytes_per_s", "us_per_message",
+                            "predicted_rtf_4", "predicted_rtf_8", "predicted_rtf_16"], Rows).
+
+%% One run on one node of two schedulers, or on two nodes of one each.
+on_nodes(one, Scene) ->
+    {ok, Stats} = rw_timewarp:run(Scene, #{schedulers => 2}),
+    Stats;
+on_nodes(two, Scene) ->
+    {ok, Stats} = rw_timewarp:run(Scene, #{schedulers => 1, nodes => 2}),
+    Stats.
 
 %%% Helpers
 

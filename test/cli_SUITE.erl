@@ -6,7 +6,8 @@
 -include("rw_test.hrl").
 -export([all/0, suite/0]).
 -export([bench_machine/1]).
--export([help/1, validate_every_scenario/1, summary_is_last_line/1, frames_file/1,
+-export([nodes_flags/1,
+         help/1, validate_every_scenario/1, summary_is_last_line/1, frames_file/1,
          bad_flags_exit_2/1, integrator_and_ccd_flags/1, groups_flags/1, bad_scene_exit_2/1, scenes_lists_bundled/1,
          bad_input_corpus/1,
          generated_bad_inputs/1, progress_line/1, snapshot_png/1, shell_api_rejects_bad_arguments/1,
@@ -15,6 +16,7 @@
 suite() -> [{timetrap, {minutes, 5}}].
 
 all() -> [help, version, validate_every_scenario, summary_is_last_line, frames_file, integrator_and_ccd_flags, groups_flags,
+          nodes_flags,
           bad_flags_exit_2,
           bad_scene_exit_2, scene_names, scenes_lists_bundled, bad_input_corpus, generated_bad_inputs, progress_line,
           snapshot_png, frames_must_match_scene, live_view_reports, shell_api_rejects_bad_arguments, summary_key_order, bench_machine].
@@ -73,6 +75,9 @@ summary_is_last_line(_Config) ->
                                                          <<"rolled_back_substeps">>, <<"efficiency">>]],
     ?assertMatch(#{<<"engine">> := <<"timewarp">>, <<"stride_ms">> := 8, <<"events">> := 1}, TwSummary).
 
+-define(CROSS_NODE_KEYS, [cross_node_messages, cross_node_bytes, cross_node_messages_per_s, cross_node_bytes_per_s,
+                          migrations]).
+
 %% The summary's keys come in the order that `run --help` gives, the same in
 %% every run, and they are the documented ones (resumed_from_ms only when a
 %% run resumes).
@@ -92,8 +97,10 @@ summary_key_order(_Config) ->
     [begin
          First = Keys(["--engine", atom_to_list(Engine)]),
          ?assertEqual(First, Keys(["--engine", atom_to_list(Engine)])),
-         ?assertEqual(maps:get(Engine, Doc) -- [resumed_from_ms], First)
+         ?assertEqual(maps:get(Engine, Doc) -- [resumed_from_ms | ?CROSS_NODE_KEYS], First)
      end || Engine <- [timewarp, reference]],
+    %% over several nodes, with what they sent each other
+    ?assertEqual(maps:get(timewarp, Doc) -- [resumed_from_ms], Keys(["--nodes", "2"])),
     ok.
 
 %% The keys of the summary (the last stdout line) in the order printed.
@@ -151,6 +158,23 @@ groups_flags(Config) ->
     ?assertEqual(Default, Alone),
     ?assertEqual(Default, Pairs).
 
+%% --nodes 2 and 3 write the reference's frames file, and say what crossed
+%% between the nodes; a node that cannot be reached is one line and exit 1.
+nodes_flags(Config) ->
+    Scene = rw_test_lib:scenario("bouncing_200_400.json"),
+    {Reference, _} = run_frames(Config, Scene, "400", "reference.jsonl", ["--engine", "reference"]),
+    [begin
+         {Frames, Stdout} = run_frames(Config, Scene, "400", "nodes.jsonl", ["--nodes", N]),
+         ?assertEqual(Reference, Frames),
+         #{<<"nodes">> := Nodes, <<"cross_node_messages">> := Messages} = last_json_line(Stdout),
+         ?assertEqual(list_to_integer(N), Nodes),
+         ?assert(Messages > 0)
+     end || N <- ["2", "3"]],
+    {1, Out, Err} = rw_test_lib:run_escript(["run", Scene, "--until", "50", "--quiet",
+                                             "--connect", "nobody_here@127.0.0.1", "--cookie", "x"]),
+    ?assertEqual(<<>>, Out),
+    ?assertMatch({match, _}, re:run(Err, "\\Arigidwarp: cannot connect to node nobody_here@127.0.0.1[^\\n]*\\n\\z")).
+
 %% Run Scene until UntilMs with Flags (exit 0), its frames to Name in the
 %% test's directory: {Frames, Stdout}.
 run_frames(Config, Scene, UntilMs, Name, Flags) ->
@@ -170,6 +194,11 @@ bad_flags_exit_2(_Config) ->
              {["run", Scene, "--ccd"], "--ccd needs a value"},
              {["run", Scene, "--groups", "sometimes"], "--groups must be on or off, got sometimes"},
              {["run", Scene, "--group-max", "0"], "--group-max must be a positive integer, got 0"},
+             {["run", Scene, "--nodes", "0"], "--nodes must be a positive integer, got 0"},
+             {["run", Scene, "--nodes", "65"], "--nodes must be at most 64, got 65"},
+             {["run", Scene, "--connect", "nohost"], "--connect takes node names as name@host"},
+             {["run", Scene, "--cookie", "secret"], "--cookie goes with --connect"},
+             {["run", Scene, "--nodes", "2", "--connect", "a@b"], "--nodes and --connect do not go together"},
              {["run", Scene, "--schedulers", "999"], "--schedulers must be at most"},
              {["run", Scene, "--until"], "--until needs a value"},
              {["run"], "run needs a scene file"},

@@ -13,6 +13,8 @@
 -include_lib("rigidwarp/include/rigidwarp.hrl").
 -include("rw_test.hrl").
 -export([all/0, groups/0, suite/0, init_per_suite/1, end_per_suite/1]).
+%% the random scenes, for nodes_SUITE
+-export([scene_map/0, stride/0, group_options/0, scenario_files/0, until/1]).
 -export([scenarios_equal/1, contact_scenes_equal/1, strides_and_buckets_equal/1, random_scenes_equal/1,
          random_delays_terminate_and_equal/1, watchdog_names_stuck_body/1,
          no_leaks_after_100_runs/1, escript_frames_identical/1, frames_api/1, frame_times_only/1, ring_keeps_last_frames/1,
@@ -527,7 +529,8 @@ no_leaks_after_100_runs(_Config) ->
 
 frames_api(_Config) ->
     File = rw_test_lib:scenario("head_on_elastic.json"),
-    {ok, Sim} = rigidwarp:start(File, #{}),
+    %% substeps fine enough that the run is still going when it is subscribed to
+    {ok, Sim} = rigidwarp:start(File, #{substep => 0.05}),
     ok = rigidwarp:subscribe(Sim),
     %% the first frame after subscribing, whichever it is (the run is under
     %% way already), then every one after it, once and in order

@@ -92,12 +92,13 @@ run_escript(Args) ->
     Dir = string:trim(os:cmd("mktemp -d")),
     ErrFile = filename:join(Dir, "stderr"),
     Cmd = lists:flatten(["exec ", quote(escript()), [[" ", quote(A)] || A <- Args], " 2>", quote(ErrFile)]),
+    %% a home of its own: a run over several nodes reads or makes
+    %% ~/.erlang.cookie
     Port = open_port({spawn_executable, "/bin/sh"},
-                     [{args, ["-c", Cmd]}, exit_status, binary, stream, {cd, root()}]),
+                     [{args, ["-c", Cmd]}, exit_status, binary, stream, {cd, root()}, {env, [{"HOME", Dir}]}]),
     {Code, Out} = collect(Port, []),
     {ok, Err} = file:read_file(ErrFile),
-    ok = file:delete(ErrFile),
-    ok = file:del_dir(Dir),
+    _ = os:cmd("rm -rf " ++ quote(Dir)),
     {Code, Out, Err}.
 
 quote(S) -> "'" ++ lists:flatten(string:replace(S, "'", "'\\''", all)) ++ "'".

@@ -31,10 +31,13 @@
 %% process's pid excepted, which the processes started after it get).
 -record(sim, {
     scene :: #scene{},
-    n :: pos_integer(),                       % dynamic bodies
+    n :: non_neg_integer(),                   % dynamic bodies (of this node's site, on several nodes)
     end_t :: non_neg_integer(),               % ticks
     sync :: rw_sync:calendar(),               % sync points, regroup points
     buckets :: tuple(),                       % bucket pids, index 0 at element 1
+    %% which bucket holds a cell: a pool of this many on one node, or a
+    %% placement over several (rw_place)
+    placement :: pos_integer() | rw_place:placement(),
     gvt :: pid() | undefined,
     records :: ets:tid(),                     % committed states (rw_commits)
     counts :: ets:tid(),                      % bodies committed per sync point (rw_commits)

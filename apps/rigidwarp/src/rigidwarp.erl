@@ -72,7 +72,7 @@
 -export_type([sim/0]).
 
 %% The options the Time Warp engine itself takes.
--define(TIMEWARP_KEYS, [buckets, schedulers, watchdog_ms, groups, group_max, max_restarts, restart_period_ms,
+-define(TIMEWARP_KEYS, [buckets, schedulers, nodes, watchdog_ms, groups, group_max, max_restarts, restart_period_ms,
                         checkpoint_ms, ring_size]).
 %% What run/2 takes and start/2 cannot: start/2 hands out frames through
 %% the handle (frames/1, subscribe/1), not to a file or a callback.
@@ -92,6 +92,8 @@ options() ->
      {ccd, boolean, "swept (continuous) collision tests (default: the scene's)"},
      {buckets, count, "TVHT bucket processes (default: the scene's, else 64)"},
      {schedulers, count, "schedulers online while the run lasts (lent by the VM; default: all)"},
+     {nodes, nodes, "run over several Erlang nodes: a count (peer nodes started here, each with schedulers "
+      "schedulers) or the names of running nodes to use besides this one (default 1)"},
      {groups, boolean, "step bodies in persistent contact as one entity (default true)"},
      {group_max, count, "the most bodies in one contact group (default 64)"},
      {watchdog_ms, count, "how long GVT may stand still before the run restarts (default 10000)"},
@@ -104,7 +106,7 @@ options() ->
      {on_frame, callback, "run/2: fun(Frame) -> _, for every frame in order"},
      {on_progress, callback, "run/2: fun(Stats) -> _, once per frame"}].
 
--type kind() :: ms | count | non_neg | boolean | path | callback | {one_of, [atom()]}.
+-type kind() :: ms | count | non_neg | boolean | path | callback | nodes | {one_of, [atom()]}.
 %% The values an option takes: ms is a number above 0, count an integer
 %% above 0, non_neg an integer from 0, path a file name, callback a fun of
 %% one argument.
@@ -135,6 +137,7 @@ kind_text(non_neg) -> "integer >= 0";
 kind_text(boolean) -> "true | false";
 kind_text(path) -> "file name";
 kind_text(callback) -> "fun/1";
+kind_text(nodes) -> "integer 1..64 | [node()]";
 kind_text({one_of, Atoms}) -> lists:join(" | ", [atom_to_list(A) || A <- Atoms]).
 
 %% @doc Start a Time Warp run that goes on in the background. The caller
@@ -444,6 +447,7 @@ failure({interrupted, _, _} = Interrupt) -> Interrupt;
 failure({raised, Class, Reason, Stack}) ->
     lists:flatten(io_lib:format("the run stopped: ~p:~0P in ~0P", [Class, Reason, 12, Stack, 8]));
 failure({schedulers, Message}) -> Message;
+failure({nodes, Message}) -> Message;
 failure(Message) when is_list(Message) -> Message;
 failure(Other) -> lists:flatten(io_lib:format("~0P", [Other, 20])).
 
@@ -494,6 +498,7 @@ valid(non_neg, V) -> is_integer(V) andalso V >= 0 andalso V =< 1 bsl 30;
 valid(boolean, V) -> is_boolean(V);
 valid(path, V) -> is_list(V) orelse is_binary(V);
 valid(callback, V) -> is_function(V, 1);
+valid(nodes, V) -> rw_nodes:check(V) =:= ok;
 valid({one_of, Atoms}, V) -> lists:member(V, Atoms).
 
 overrides(Opts) ->

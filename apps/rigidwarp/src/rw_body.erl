@@ -165,8 +165,8 @@ stage(_) -> none.
 perform([], Phase, D) ->
     {Phase, D};
 perform([{tvht_write, T0, Spheres, Steps, Last}], _Phase, #data{sim = Sim} = D) ->
-    #sim{buckets = Buckets, scene = #scene{model = M, cell_size = Cell, substep = Dt}} = Sim,
-    Planner = fun() -> rw_tvht_plan:write(self(), T0, Spheres, Steps, M, {Cell, Dt}, tuple_size(Buckets)) end,
+    #sim{buckets = Buckets, placement = Place, scene = #scene{model = M, cell_size = Cell, substep = Dt}} = Sim,
+    Planner = fun() -> rw_tvht_plan:write(self(), T0, Spheres, Steps, M, {Cell, Dt}, Place) end,
     %% hashing the states to cells and buckets is collision-checking work
     {Write, Plan} = profiled(Sim, tvht_reductions, Planner),
     maybe_delay(D),

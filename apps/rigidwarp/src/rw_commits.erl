@@ -1,14 +1,14 @@
 %% The committed states of one simulation, in two shared ETS tables: each
 %% body's record at each sync point it has committed ({{T, Idx}, Frame},
 %% ordered by time, then idx) and, per sync point, how many bodies have
-%% committed it. An entity commits a sync point once nothing it awaits is
+%% committed it ({T, Count, Withdrawals}). An entity commits a sync point once nothing it awaits is
 %% about an earlier time, and withdraws it when it rolls back; the commit
 %% that completes a sync point tells the GVT process, which checks the
 %% count again before it passes it (a rollback may have taken commits
 %% back meanwhile).
 -module(rw_commits).
 -include("rigidwarp.hrl").
--export([commit/3, withdraw/3, complete/2, forget/2, select_at/2, states_at/2, delete_at/2, keep_only/2]).
+-export([commit/3, withdraw/3, complete/2, count/2, records_at/2, forget_through/2, forget/2, select_at/2, states_at/2, delete_at/2, keep_only/2]).
 -export_type([record/0]).
 
 %% A body's committed state at a sync point, keyed by time and idx: its
@@ -20,7 +20,7 @@
 -spec commit(#sim{}, non_neg_integer(), [record()]) -> ok.
 commit(#sim{records = Records, counts = Counts, n = N, gvt = Gvt}, T, Rows) ->
     true = ets:insert(Records, Rows),
-    case ets:update_counter(Counts, T, length(Rows), {T, 0}) of
+    case ets:update_counter(Counts, T, {2, length(Rows)}, {T, 0, 0}) of
         N -> Gvt ! {complete, T}, ok;
         _ -> ok
     end.
@@ -30,7 +30,7 @@ commit(#sim{records = Records, counts = Counts, n = N, gvt = Gvt}, T, Rows) ->
 withdraw(#sim{records = Records, counts = Counts}, Times, Idxs) ->
     N = length(Idxs),
     lists:foreach(fun(T) ->
-                          _ = ets:update_counter(Counts, T, -N),
+                          _ = ets:update_counter(Counts, T, [{2, -N}, {3, 1}]),
                           lists:foreach(fun(Idx) -> true = ets:delete(Records, {T, Idx}) end, Idxs)
                   end, Times).
 
@@ -38,9 +38,24 @@ withdraw(#sim{records = Records, counts = Counts}, Times, Idxs) ->
 -spec complete(#sim{}, non_neg_integer()) -> boolean().
 complete(#sim{counts = Counts, n = N}, T) ->
     case ets:lookup(Counts, T) of
-        [{_, N}] -> true;
+        [{_, N, _}] -> true;
         _ -> false
     end.
+
+%% How many bodies have committed sync point T, and how many withdrawals
+%% of T there have been: a count that is whole twice with the same
+%% withdrawals was whole all along in between (rw_gvt_site).
+-spec count(#sim{}, non_neg_integer()) -> {non_neg_integer(), non_neg_integer()}.
+count(#sim{counts = Counts}, T) ->
+    case ets:lookup(Counts, T) of
+        [{_, C, W}] -> {C, W};
+        [] -> {0, 0}
+    end.
+
+%% Every record committed at sync point T (the site of a simulation on
+%% several nodes sends them to the node that assembles the frames).
+-spec records_at(non_neg_integer(), ets:tid()) -> [record()].
+records_at(T, Records) -> ets:select(Records, [{{{T, '_'}, '_', '_'}, [], ['$_']}]).
 
 %% GVT has passed T: its count is no longer needed.
 -spec forget(#sim{}, non_neg_integer()) -> ok.
@@ -59,6 +74,18 @@ select_at(T, Records) -> ets:select(Records, [{{{T, '_'}, '$1', '_'}, [], ['$1']
 states_at(T, Records) ->
     [#st{p = P, v = V, q = Q, w = W}
      || {_, {_, P, _, Q, _}, {V, W}} <- ets:select(Records, [{{{T, '_'}, '_', '_'}, [], ['$_']}])].
+
+%% GVT has passed G: forget the counts and records of every sync point up
+%% to G.
+-spec forget_through(#sim{}, non_neg_integer()) -> ok.
+forget_through(#sim{counts = Counts, records = Records}, G) ->
+    _ = ets:select_delete(Counts, [{{'$1', '_', '_'}, [{'=<', '$1', G}], [true]}]),
+    delete_through(G, Records, ets:first(Records)).
+
+delete_through(G, Records, {T, _}) when T =< G ->
+    ok = delete_at(T, Records),
+    delete_through(G, Records, ets:next(Records, {T, later}));
+delete_through(_G, _Records, _) -> ok.
 
 %% Forget the records of sync point T.
 -spec delete_at(non_neg_integer(), ets:tid()) -> ok.

@@ -23,7 +23,7 @@
 -module(rw_gvt).
 -behaviour(gen_server).
 -include("rigidwarp.hrl").
--export([start_link/2, send_frames/1, wake_at/3, regroup_ack/3]).
+-export([start_link/2, send_frames/1, wake_at/3, regroup_ack/3, sites/3]).
 -export([init/1, handle_call/3, handle_cast/2, handle_info/2]).
 -export_type([options/0]).
 
@@ -32,6 +32,24 @@
 %% ring; checkpoint_ms: wall time between checkpoints.
 -type options() :: #{run => pid(), frames => boolean(), ring_size => pos_integer(),
                      checkpoint_ms => non_neg_integer()}.
+
+%% A simulation over several nodes: the GVT processes of the sites, those
+%% that hold bodies (whose reports GVT waits for), the site of every body's
+%% idx and process; what each site has reported whole ({T, Withdrawals});
+%% the confirmation under way; the pairs that met often (Pair => T); the
+%% regroup moves to send with the next GVT; the sync points whose records
+%% are here.
+-record(m, {
+    sites :: [pid()],
+    voters :: [pid()],
+    site_of :: #{non_neg_integer() => non_neg_integer()},
+    gvt_of :: #{pid() => pid()},
+    reported = #{} :: #{non_neg_integer() => #{pid() => non_neg_integer()}},
+    confirming = none :: none | {reference(), [non_neg_integer()], [pid()], [[non_neg_integer()]]},
+    met = #{} :: #{{non_neg_integer(), non_neg_integer()} => non_neg_integer()},
+    moves = [] :: [{pid(), term()}],
+    have = #{} :: #{non_neg_integer() => true}
+}).
 
 -record(s, {
     sim :: #sim{},
@@ -53,7 +71,9 @@
     %% regroup points with entities that have not answered {regroup, S, _} yet
     unready = #{} :: #{non_neg_integer() => [pid()]},
     %% sync points passed since GVT was last published, newest first
-    passed = [] :: [non_neg_integer()]
+    passed = [] :: [non_neg_integer()],
+    %% on several nodes (rw_gvt_site): none on one
+    multi = none :: none | #m{}
 }).
 
 -spec start_link(#sim{}, options()) -> {ok, pid()}.
@@ -78,6 +98,13 @@ regroup_ack(Gvt, Pid, S) ->
     Gvt ! {regroup_ack, S, Pid},
     ok.
 
+%% On several nodes: the GVT process of every site (by the site's number),
+%% the site of every body idx and the site GVT process of every body
+%% process. Sent before any body starts.
+-spec sites(pid(), [pid()], {#{non_neg_integer() => non_neg_integer()}, #{pid() => pid()}, [pid()]}) -> ok.
+sites(Gvt, Sites, {SiteOf, GvtOf, Voters}) ->
+    gen_server:call(Gvt, {sites, Sites, SiteOf, GvtOf, Voters}).
+
 -spec init({#sim{}, options()}) -> {ok, #s{}}.
 init({#sim{scene = #scene{spheres = Spheres}, n = N, records = Records, ring = Ring, group_max = Max,
            grouping = Mode} = Sim, Opts}) ->
@@ -98,7 +125,10 @@ init({#sim{scene = #scene{spheres = Spheres}, n = N, records = Records, ring = R
             groups = rw_regroup:new(Idxs, Max, Mode)}}.
 
 %% GVT is read from the run (rw_run:gvt/1), which outlives this process.
--spec handle_call(term(), gen_server:from(), #s{}) -> {reply, {error, unknown_call}, #s{}}.
+-spec handle_call(term(), gen_server:from(), #s{}) -> {reply, ok | {error, unknown_call}, #s{}}.
+handle_call({sites, Sites, SiteOf, GvtOf, Voters}, _From, S) ->
+    {reply, ok, S#s{multi = #m{sites = Sites, site_of = SiteOf, gvt_of = GvtOf, voters = Voters},
+                    groups = rw_regroup:by_site(S#s.groups, SiteOf)}};
 handle_call(Req, _From, S) ->
     logger:warning("rw_gvt: unexpected call ~p", [Req]),
     {reply, {error, unknown_call}, S}.
@@ -112,6 +142,12 @@ handle_info({complete, T}, #s{complete = C, sim = #sim{profile = false}} = S) ->
     {noreply, advance(S#s{complete = more_complete(C#{T => true})})};
 handle_info({complete, T}, #s{complete = C, sim = #sim{stats = Stats}} = S) ->
     {noreply, rw_stats:timed(Stats, gvt_reductions, fun() -> advance(S#s{complete = more_complete(C#{T => true})}) end)};
+handle_info({site_complete, Site, Whole}, #s{multi = M} = S) ->
+    Reported = lists:foldl(fun({T, W}, R) -> maps:update_with(T, fun(By) -> By#{Site => W} end, #{Site => W}, R) end,
+                           M#m.reported, Whole),
+    {noreply, advance(S#s{multi = M#m{reported = Reported}})};
+handle_info({confirmed, Ref, Site, Confirmed, Rest, Records, Met}, #s{multi = #m{confirming = {Ref, _, _, _}}} = S) ->
+    {noreply, confirmed(Site, Confirmed, Rest, Records, Met, S)};
 handle_info({regroup_ack, At, Pid}, #s{unready = U} = S) ->
     Left = lists:delete(Pid, maps:get(At, U)),
     S1 = case Left of
@@ -144,6 +180,8 @@ more_complete(C) ->
 %% may be waiting for GVT, and what it needs to step on (its regroup move,
 %% whose entities must stop at their regroup point before they pass it) is
 %% sent before GVT is published, the rest comes after.
+advance(#s{multi = #m{}} = S) ->
+    confirm(S);
 advance(#s{gvt = G0} = S) ->
     #s{gvt = G, sim = #sim{end_t = End} = Sim, passed = Passed} = S1 = advance_over(S),
     case G > G0 of
@@ -190,10 +228,18 @@ pass(Next, #s{sim = #sim{end_t = End}} = S) ->
 
 %% A sync point T that GVT has passed: put it in the ring if it is a
 %% frame time (its records stay until it leaves the ring), else forget its
-%% records.
+%% records. On several nodes, only the frames whose records came here
+%% enter the ring; of the others, the run hears the time.
 finish(T, #s{sim = #sim{records = Records, ring = Ring, sync = Cal} = Sim} = S) ->
     ok = rw_commits:forget(Sim, T),
+    Here = case S#s.multi of
+               none -> true;
+               #m{have = Have} -> maps:is_key(T, Have)
+           end,
     case rw_sync:is_frame(T, Cal) of
+        true when not Here ->
+            ok = notify(S#s.run, {rw_frame_time, self(), ms(T, S)}),
+            S;
         true ->
             %% frames leave the engine with their time in ms
             Ms = ms(T, S),
@@ -232,22 +278,149 @@ regroup(X, #s{sim = #sim{sync = Cal, end_t = End}} = S) ->
         P -> regroup(X, P, S)
     end.
 
-regroup(X, P, #s{sim = #sim{stats = Stats, met = MetTab}, groups = Groups} = S0) ->
-    %% the pairs that met often since the last regroup point but one
-    Met = maps:from_list([{Pair, true} || Pair <- ets:select(MetTab, [{{'$1', '$2'}, [{'>=', '$2', X - P}], ['$1']}])]),
-    _ = ets:select_delete(MetTab, [{{'_', '$1'}, [{'<', '$1', X - P}], [true]}]),
-    case rw_regroup:quiet(Met, Groups) of
+regroup(X, P, #s{sim = #sim{stats = Stats}, groups = Groups} = S00) ->
+    {Met, S0} = met_since(X - P, S00),
+    case rw_regroup:quiet(Met, Groups) orelse not records_here(X, S0) of
         true ->
             S0;
         false ->
             #s{pids = Pids} = S = with_pids(S0),
             {Tell, Groups1} = rw_regroup:decide(committed(X, S), Met, Pids, Groups),
             At = X + P,
-            Told = [begin Pid = maps:get(I, Pids), Pid ! {regroup, At, Move}, Pid end || {I, Move} <- Tell],
+            Moves = [{maps:get(I, Pids), {regroup, At, Move}} || {I, Move} <- Tell],
+            Told = [Pid || {Pid, _} <- Moves],
             ok = rw_stats:add(Stats, regroups, length(Told)),
             Unready = case Told of [] -> S#s.unready; _ -> (S#s.unready)#{At => Told} end,
-            S#s{groups = Groups1, unready = Unready}
+            tell(Moves, S#s{groups = Groups1, unready = Unready})
     end.
+
+%% The pairs that met often since Since (forgetting those before): on one
+%% node from the table the entities write, on several from what the sites
+%% sent (pairs of one site only: a contact group is one process, on one
+%% node).
+met_since(Since, #s{multi = none, sim = #sim{met = MetTab}} = S) ->
+    Met = maps:from_list([{Pair, true} || Pair <- ets:select(MetTab, [{{'$1', '$2'}, [{'>=', '$2', Since}], ['$1']}])]),
+    _ = ets:select_delete(MetTab, [{{'_', '$1'}, [{'<', '$1', Since}], [true]}]),
+    {Met, S};
+met_since(Since, #s{multi = #m{met = All} = M} = S) ->
+    Recent = maps:filter(fun(_, T) -> T >= Since end, All),
+    {maps:map(fun(_, _) -> true end, Recent), S#s{multi = M#m{met = Recent}}}.
+
+records_here(_X, #s{multi = none}) -> true;
+records_here(X, #s{multi = #m{have = Have}}) -> maps:is_key(X, Have).
+
+%% On one node regroup moves go to their entities at once; on several, to
+%% the entities' sites with the next GVT.
+tell(Moves, #s{multi = none} = S) ->
+    _ = [Pid ! Msg || {Pid, Msg} <- Moves],
+    S;
+tell(Moves, #s{multi = M} = S) ->
+    S#s{multi = M#m{moves = M#m.moves ++ Moves}}.
+
+%%% Several nodes (rw_gvt_site)
+
+%% Ask the sites with bodies to confirm the sync points after GVT that all
+%% of them have reported whole, up to the first regroup point, hold or the
+%% end: one batch at a time.
+confirm(#s{multi = #m{confirming = none} = M, gvt = G, sim = #sim{sync = Cal}} = S) ->
+    case confirmable(rw_sync:after_gvt(G, Cal), S) of
+        [] ->
+            S;
+        Ts ->
+            Need = need(Ts, S),
+            Ref = make_ref(),
+            _ = [Site ! {confirm, Ref, [{T, maps:get(Site, maps:get(T, M#m.reported))} || T <- Ts], Need}
+                 || Site <- M#m.voters],
+            S#s{multi = M#m{confirming = {Ref, Ts, M#m.voters, []}, have = maps:merge(M#m.have, maps:from_keys(Need, true))}}
+    end;
+confirm(S) -> S.
+
+confirmable(Next, #s{sim = #sim{sync = Cal, end_t = End}, unready = U, multi = #m{reported = Reported, voters = Voters}} = S) ->
+    Held = map_size(U) > 0 andalso Next >= lists:min(maps:keys(U)),
+    Whole = case Reported of
+                #{Next := By} -> lists:all(fun(V) -> maps:is_key(V, By) end, Voters);
+                #{} -> false
+            end,
+    case (not Held) andalso Whole of
+        false -> [];
+        true when Next >= End -> [Next];
+        true ->
+            case regroup_point(Next, S) of
+                true -> [Next];
+                false -> [Next | confirmable(rw_sync:after_gvt(Next, Cal), S)]
+            end
+    end.
+
+regroup_point(X, #s{sim = #sim{sync = Cal, end_t = End}}) ->
+    case rw_sync:period(Cal) of
+        0 -> false;
+        P -> X rem P =:= 0 andalso X + P < End
+    end.
+
+%% The sync points of a batch whose records must come here: the frames the
+%% run shows or keeps (all when it asked for frames or its ring keeps more
+%% than one, else the last), a checkpoint when one is due, regroup points
+%% where contact groups may change.
+need(Ts, #s{sim = #sim{sync = Cal, end_t = End}, groups = Groups} = S) ->
+    Frames = [T || T <- Ts, rw_sync:is_frame(T, Cal)],
+    Shown = [T || T <- Frames, S#s.frames orelse S#s.ring_size > 1 orelse T =:= End],
+    Check = case erlang:monotonic_time(millisecond) >= S#s.checkpoint_due of
+                true -> lists:sublist(lists:reverse([T || T <- Frames, T < End]), 1);
+                false -> []
+            end,
+    Regroup = [X || X <- Ts, regroup_point(X, S),
+                    not rw_regroup:quiet(element(1, met_since(X - rw_sync:period(Cal), S)), Groups)],
+    lists:usort(Shown ++ Check ++ Regroup).
+
+%% A site's answer: its records of the sync points it confirmed, the pairs
+%% that met, what it knows now of the others. Once every site has
+%% answered, GVT passes the sync points every site confirmed.
+confirmed(Site, Confirmed, Rest, Records, Met, #s{sim = Sim, multi = M} = S) ->
+    true = ets:insert(Sim#sim.records, Records),
+    SiteOf = M#m.site_of,
+    Met1 = lists:foldl(fun({{A, B} = Pair, T}, Acc) ->
+                               case maps:get(A, SiteOf) =:= maps:get(B, SiteOf) of
+                                   true -> maps:update_with(Pair, fun(T0) -> max(T0, T) end, T, Acc);
+                                   false -> Acc
+                               end
+                       end, M#m.met, Met),
+    Reported = lists:foldl(fun({T, none}, R) -> maps:update_with(T, fun(By) -> maps:remove(Site, By) end, #{}, R);
+                              ({T, W}, R) -> maps:update_with(T, fun(By) -> By#{Site => W} end, #{Site => W}, R)
+                           end, M#m.reported, Rest),
+    {Ref, Ts, Pending, Answers} = M#m.confirming,
+    case lists:delete(Site, Pending) of
+        [] ->
+            Passable = lists:sublist(Ts, lists:min([length(C) || C <- [Confirmed | Answers]])),
+            Stale = Ts -- Passable,
+            Have = maps:without(Stale, M#m.have),
+            S1 = pass_confirmed(Passable, S#s{multi = M#m{met = Met1, reported = Reported, confirming = none,
+                                                           have = Have}}),
+            confirm(publish(S#s.gvt, S1));
+        Left ->
+            S#s{multi = M#m{met = Met1, reported = Reported, confirming = {Ref, Ts, Left, [Confirmed | Answers]}}}
+    end.
+
+pass_confirmed([], S) -> S;
+pass_confirmed([T | Ts], S) ->
+    S1 = regroup(T, S),
+    pass_confirmed(Ts, S1#s{gvt = T, passed = [T | S1#s.passed]}).
+
+%% GVT has passed the sync points confirmed: every site hears it, with the
+%% regroup moves for its entities first; then the frames.
+publish(G0, #s{gvt = G} = S) when G =< G0 -> S;
+publish(_G0, #s{gvt = G, sim = #sim{end_t = End} = Sim, multi = M, passed = Passed} = S) ->
+    ok = atomics:put(Sim#sim.gvt_now, 1, G),
+    GvtOf = M#m.gvt_of,
+    _ = [Site ! {gvt, G, [{Pid, Msg} || {Pid, Msg} <- M#m.moves, maps:get(Pid, GvtOf) =:= Site]} || Site <- M#m.sites],
+    S1 = lists:foldl(fun finish/2, S#s{passed = [], multi = M#m{moves = []}}, lists:reverse(Passed)),
+    #s{multi = M1} = S1,
+    S2 = S1#s{multi = M1#m{reported = maps:filter(fun(T, _) -> T > G end, M1#m.reported),
+                           have = maps:filter(fun(T, _) -> T > G end, M1#m.have)}},
+    ok = case G of
+             End -> notify(S#s.run, {rw_done, self(), ms(End, S)});
+             _ -> ok
+         end,
+    S2.
 
 %% The bodies' processes (rw_sim_sup wrote them before the simulation
 %% started).

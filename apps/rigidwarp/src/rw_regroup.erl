@@ -28,7 +28,7 @@
 %% decide/4 is what the GVT process does at a regroup point: the groups
 %% from the committed states, and whom to tell what; it carries that out.
 -module(rw_regroup).
--export([new/3, quiet/2, decide/4, plan/4, moves/3]).
+-export([new/3, by_site/2, quiet/2, decide/4, plan/4, moves/3]).
 -export_type([body/0, leaders/0, move/0, pairs/0, groups/0]).
 
 %% A body's committed state at the regroup point: idx, radius, position,
@@ -54,12 +54,19 @@
     leaders :: leaders(),
     grouped = false :: boolean(),            % any group of two bodies or more
     max :: pos_integer(),
-    mode :: persistent | eager               % eager: tests only
+    mode :: persistent | eager,              % eager: tests only
+    %% over several nodes, each body's node: a group is one process, so
+    %% only bodies of one node are grouped
+    sites = none :: none | #{non_neg_integer() => non_neg_integer()}
 }).
 -opaque groups() :: #groups{}.
 
 -spec new([non_neg_integer()], pos_integer(), persistent | eager) -> groups().
 new(Idxs, Max, Mode) -> #groups{leaders = maps:from_list([{I, I} || I <- Idxs]), max = Max, mode = Mode}.
+
+%% Group only bodies on one node: Sites maps each body's idx to its node.
+-spec by_site(groups(), #{non_neg_integer() => non_neg_integer()}) -> groups().
+by_site(G, Sites) -> G#groups{sites = Sites}.
 
 %% Without a group and without a pair that met often nothing can change:
 %% no need to read the committed states.
@@ -72,8 +79,14 @@ quiet(Met, #groups{mode = Mode, grouped = Grouped}) ->
 %% changes must do at the next regroup point ({Idx, Move}: tell the process
 %% of body Idx). Pids maps idx to body process.
 -spec decide([body()], pairs(), #{non_neg_integer() => pid()}, groups()) -> {[{non_neg_integer(), move()}], groups()}.
-decide(Bodies, Met, Pids, #groups{leaders = Old, max = Max, mode = Mode} = G) ->
-    New = plan(Bodies, Old, Max, case Mode of eager -> eager; persistent -> Met end),
+decide(Bodies, Met, Pids, #groups{leaders = Old, max = Max, mode = Mode, sites = Sites} = G) ->
+    Pairs = case Mode of eager -> eager; persistent -> Met end,
+    New = case Sites of
+              none -> plan(Bodies, Old, Max, Pairs);
+              _ ->
+                  BySite = maps:groups_from_list(fun({I, _, _, _}) -> maps:get(I, Sites) end, Bodies),
+                  maps:fold(fun(_, Share, Acc) -> maps:merge(Acc, plan(Share, Old, Max, Pairs)) end, #{}, BySite)
+          end,
     Moves = moves(Old, New, Pids),
     {[{I, Move} || {I, #{send := _} = Move} <- maps:to_list(Moves)],
      G#groups{leaders = New, grouped = lists:any(fun({I, L}) -> I =/= L end, maps:to_list(New))}}.

@@ -21,7 +21,7 @@
 -module(rw_run).
 -behaviour(gen_server).
 -include("rigidwarp.hrl").
--export([start/2, stop/1, is_run/1, subscribe/4, status/1, stats/1, gvt/1, ring/1, scene/1, processes/1]).
+-export([start/2, stop/1, is_run/1, subscribe/4, status/1, stats/1, gvt/1, ring/1, scene/1, processes/1, nodes/1]).
 -export([start_link/2, init/1, handle_call/3, handle_cast/2, handle_info/2, terminate/2]).
 -export_type([options/0, status/0, who/0, subscription/0]).
 
@@ -29,7 +29,7 @@
 %% (rw_schedulers); the restart budget; checkpoint_ms, wall time between
 %% checkpoints; from, the checkpoint to start from; subscribers from the
 %% start.
--type options() :: #{buckets => pos_integer(), schedulers => pos_integer(),
+-type options() :: #{buckets => pos_integer(), schedulers => pos_integer(), nodes => rw_nodes:spec() | rw_nodes:nodes(),
                      max_restarts => non_neg_integer(), restart_period_ms => pos_integer(),
                      checkpoint_ms => non_neg_integer(), from => rw_reference:checkpoint(),
                      subscribers => [subscription()], atom() => term()}.
@@ -60,14 +60,38 @@
     watched = #{} :: #{reference() => {pid(), rw_sim_sup:who()}},
     restarts = [] :: [integer()],             % when, in the budget's period (monotonic ms)
     restarted = 0 :: non_neg_integer(),
+    %% over several nodes: the nodes of the tree as it stands, in the order
+    %% of its sites, and how many times bodies were placed anew
+    placed_on = [] :: [node()],
+    migrations = 0 :: non_neg_integer(),
+    nodes = #{nodes => [node()], peers => []} :: rw_nodes:nodes(),
+    %% the counters of the sites on other nodes, from the trees stopped
+    %% since, and the sites of the tree as it stands
+    remote = #{} :: #{atom() => integer()},
+    sites = [] :: [pid()],
     start = 0 :: non_neg_integer(),           % where this run began, in ticks (its committed work counts from there)
     started :: integer(),                     % monotonic ms
     ended = none :: none | integer()
 }).
 
-%% Start a run of Scene under rw_sims_sup.
+%% Start a run of Scene under rw_sims_sup, on the nodes it asks for: the
+%% peer nodes it starts are the run's, stopped when it ends (they are
+%% linked to the caller until the run has taken them over).
 -spec start(#scene{}, options()) -> {ok, pid()} | {error, term()}.
-start(Scene, Opts) -> supervisor:start_child(rw_sims_sup, [Scene, Opts]).
+start(Scene, Opts) ->
+    case rw_nodes:start(maps:get(nodes, Opts, 1), maps:get(schedulers, Opts, undefined)) of
+        {ok, Nodes} ->
+            case supervisor:start_child(rw_sims_sup, [Scene, Opts#{nodes => Nodes}]) of
+                {ok, Run} ->
+                    ok = rw_nodes:unlink(Nodes),
+                    {ok, Run};
+                Error ->
+                    ok = rw_nodes:stop(Nodes),
+                    Error
+            end;
+        {error, Message} ->
+            {error, {nodes, Message}}
+    end.
 
 %% Stop it: no process or table is left behind.
 -spec stop(pid()) -> ok.
@@ -100,6 +124,11 @@ gvt(Run) -> gen_server:call(Run, gvt).
 -spec processes(pid()) -> [{pid(), rw_sim_sup:who()}].
 processes(Run) -> gen_server:call(Run, processes).
 
+%% The nodes of the run (this one first) and the peer nodes it started,
+%% with their control processes (peer).
+-spec nodes(pid()) -> rw_nodes:nodes().
+nodes(Run) -> gen_server:call(Run, nodes).
+
 -spec scene(pid()) -> #scene{}.
 scene(Run) -> gen_server:call(Run, scene).
 
@@ -115,22 +144,24 @@ stats(Run) -> gen_server:call(Run, stats).
 start_link(Scene, Opts) -> gen_server:start_link(?MODULE, {Scene, Opts}, []).
 
 -spec init({#scene{}, options()}) -> {ok, #r{}} | {stop, term()}.
-init({Scene, Opts}) ->
+init({Scene, #{nodes := Nodes} = Opts}) ->
     process_flag(trap_exit, true),
+    ok = rw_nodes:link(Nodes),
     case schedulers(Opts) of
-        ok ->
-            R = #r{scene = Scene, opts = maps:merge(#{ring_size => ring_size(Scene)}, Opts),
-                   buckets = buckets(Scene, Opts),
-                   records = ets:new(rw_records, [ordered_set, public, {write_concurrency, true}]),
-                   ring = ets:new(rw_frames, [set, public, {read_concurrency, true}]),
-                   stats = rw_stats:new(), subs = maps:get(subscribers, Opts, []),
-                   checkpoint = maps:get(from, Opts, none), started = erlang:monotonic_time(millisecond)},
-            case incarnate(R#r{start = restart_tick(R)}) of
-                {ok, R1} -> {ok, R1};
-                {error, Reason} -> {stop, Reason}
-            end;
-        {error, Message} ->
-            {stop, {schedulers, Message}}
+        ok -> init(Scene, Opts, Nodes);
+        {error, Message} -> {stop, {schedulers, Message}}
+    end.
+
+init(Scene, Opts, Nodes) ->
+    R = #r{nodes = Nodes, scene = Scene, opts = maps:merge(#{ring_size => ring_size(Scene)}, Opts),
+           buckets = buckets(Scene, Opts),
+           records = ets:new(rw_records, [ordered_set, public, {write_concurrency, true}]),
+           ring = ets:new(rw_frames, [set, public, {read_concurrency, true}]),
+           stats = rw_stats:new(), subs = maps:get(subscribers, Opts, []),
+           checkpoint = maps:get(from, Opts, none), started = erlang:monotonic_time(millisecond)},
+    case incarnate(R#r{start = restart_tick(R)}) of
+        {ok, R1} -> {ok, R1};
+        {error, Reason} -> ok = rw_nodes:stop(Nodes), _ = release_schedulers(R), {stop, Reason}
     end.
 
 %% The frames the ring keeps unless asked otherwise: the latest
@@ -164,10 +195,12 @@ incarnate(#r{scene = Scene0, checkpoint = Checkpoint, opts = Opts} = R) ->
                 none -> Scene0;
                 _ -> rw_scene:from_checkpoint(Scene0, Checkpoint)
             end,
-    SimOpts = (maps:with(?SIM_KEYS, Opts))#{run => self(), frames => lists:keymember(frames, 2, R#r.subs)},
+    Nodes = rw_nodes:alive(R#r.nodes),
+    SimOpts = (maps:with(?SIM_KEYS, Opts))#{run => self(), frames => lists:keymember(frames, 2, R#r.subs),
+                                            nodes => Nodes},
     case rw_sim_sup:start_link(Scene, R#r.buckets, #{records => R#r.records, ring => R#r.ring}, R#r.stats, SimOpts) of
         {ok, Sup, Sim, Named} ->
-            {ok, R#r{sup = Sup, sim = Sim,
+            {ok, R#r{sup = Sup, sim = Sim, sites = [P || {P, {site, _}} <- Named], placed_on = Nodes,
                      watched = maps:from_list([{erlang:monitor(process, P), {P, Who}} || {P, Who} <- Named])}};
         {error, _} = Error ->
             Error
@@ -175,8 +208,9 @@ incarnate(#r{scene = Scene0, checkpoint = Checkpoint, opts = Opts} = R) ->
 
 %% Stop the simulation's tree (nothing it does matters any more).
 teardown(#r{sup = none} = R) -> R;
-teardown(#r{sup = Sup, watched = W} = R) ->
+teardown(#r{sup = Sup, watched = W} = R0) ->
     _ = [erlang:demonitor(Ref, [flush]) || Ref <- maps:keys(W)],
+    R = R0#r{remote = add_counts(R0#r.remote, site_counts(R0)), sites = []},
     %% a monitor, not the link: the supervisor may be gone already, its
     %% exit taken (a monitor of a dead process is told at once)
     MRef = erlang:monitor(process, Sup),
@@ -202,6 +236,8 @@ handle_call(gvt, _From, R) ->
     {reply, ms(gvt_tick(R), R), R};
 handle_call(processes, _From, #r{watched = W} = R) ->
     {reply, maps:values(W), R};
+handle_call(nodes, _From, R) ->
+    {reply, R#r.nodes, R};
 handle_call(scene, _From, R) ->
     {reply, R#r.scene, R};
 handle_call(ring, _From, R) ->
@@ -223,10 +259,11 @@ handle_info({rw_checkpoint, _Gvt, {checkpoint, T, _, _} = C}, #r{checkpoint = Ol
         {checkpoint, OldT, _, _} when OldT >= T -> {noreply, R};
         _ ->
             _ = [Pid ! {rw_checkpoint, self(), C} || {Pid, _, true} <- R#r.subs],
-            {noreply, R#r{checkpoint = C}}
+            {noreply, maybe_migrate(R#r{checkpoint = C})}
     end;
 handle_info({rw_done, _Gvt, EndMs}, #r{status = running} = R) ->
     R1 = teardown(R),
+    ok = rw_nodes:stop(R1#r.nodes),
     ok = release_schedulers(R1),
     _ = [Pid ! {rw_done, self(), EndMs} || {Pid, _, _} <- R1#r.subs],
     {noreply, R1#r{status = done, ended = erlang:monotonic_time(millisecond)}};
@@ -246,10 +283,13 @@ handle_info(_Msg, R) ->
 -spec terminate(term(), #r{}) -> ok.
 terminate(_Reason, R) ->
     _ = teardown(R),
+    ok = rw_nodes:stop(R#r.nodes),
     release_schedulers(R).
 
-release_schedulers(#r{opts = #{schedulers := _}}) -> rw_schedulers:release();
-release_schedulers(_) -> ok.
+release_schedulers(#r{opts = Opts}) -> release_schedulers_of(Opts).
+
+release_schedulers_of(#{schedulers := _}) -> rw_schedulers:release();
+release_schedulers_of(_) -> ok.
 
 %% A frame GVT has passed, from this tree or one stopped since: to every
 %% subscriber, unless it was delivered before a restart.
@@ -294,6 +334,53 @@ fault(Who, Reason, #r{opts = Opts} = R0) ->
             crashed(Who, Reason, R)
     end.
 
+%% The counters of the sites of the tree (on several nodes): those of the
+%% sites on other nodes, and what every node has sent to the others.
+site_counts(#r{sites = Sites}) ->
+    lists:foldl(fun(Site, Acc) ->
+                        try rw_site:stats(Site) of
+                            Counts when node(Site) =:= node() -> add_counts(Acc, maps:with([dist_messages, dist_bytes], Counts));
+                            Counts -> add_counts(Acc, Counts)
+                        catch
+                            exit:_ -> Acc
+                        end
+                end, #{}, Sites).
+
+take(Key, Map) ->
+    case maps:take(Key, Map) of
+        error -> {0, Map};
+        Found -> Found
+    end.
+
+add_counts(A, B) -> maps:fold(fun(K, V, Acc) -> maps:update_with(K, fun(V0) -> V0 + V end, V, Acc) end, A, B).
+
+%% Over several nodes, bodies live on the node of the slab of space they
+%% started in. When a checkpoint finds a tenth of them or more carried into
+%% other slabs, the simulation starts again from it, placed anew (as after
+%% a fault, but outside the restart budget): a move at a sync point, at the
+%% cost of the work done since the checkpoint.
+-define(MISPLACED_SHARE, 10).
+
+maybe_migrate(#r{sim = #sim{placement = Place}, sup = Sup, status = running, placed_on = Nodes,
+                 checkpoint = {checkpoint, _, _, States}, scene = #scene{spheres = Spheres}} = R)
+  when not is_integer(Place), Sup =/= none ->
+    Now = maps:from_list([{Id, node(Pid)} || {Pid, {body, Id}} <- maps:values(R#r.watched)]),
+    Misplaced = length([Id || {#sphere{id = Id}, #st{p = P}} <- lists:zip(Spheres, States),
+                              maps:get(Id, Now, none) =/= lists:nth(rw_place:site_of(P, Place) + 1, Nodes)]),
+    case Misplaced * 100 >= ?MISPLACED_SHARE * length(Spheres) of
+        true ->
+            R1 = teardown(R),
+            ok = rw_ring:truncate(R1#r.ring, restart_tick(R1)),
+            ok = rw_commits:keep_only(R1#r.records, rw_ring:ticks(R1#r.ring)),
+            case incarnate(R1#r{migrations = R1#r.migrations + 1}) of
+                {ok, R2} -> R2;
+                {error, Why} -> crashed(supervisor, Why, R1)
+            end;
+        false ->
+            R
+    end;
+maybe_migrate(R) -> R.
+
 %% Where a restart starts: the latest checkpoint, else the run's start.
 restart_tick(#r{checkpoint = {checkpoint, T, _, _}}) -> T;
 restart_tick(#r{scene = #scene{start = Start}}) -> Start.
@@ -322,7 +409,7 @@ tick(Ms, #scene{tick_us = U}) -> round(Ms * 1000 / U).
 stats_of(#r{scene = #scene{spheres = Spheres, substep = Dt, duration = End}, stats = Ref,
             sim = Sim, started = T0, start = Start} = R) ->
     Profile = case Sim of #sim{profile = P} -> P; undefined -> false end,
-    Raw = rw_stats:read(Ref, Profile),
+    Raw = add_counts(add_counts(rw_stats:read(Ref, Profile), R#r.remote), site_counts(R)),
     G = gvt_tick(R),
     N = length(Spheres),
     Committed = N * (max(G, Start) - Start) div Dt,
@@ -335,7 +422,18 @@ stats_of(#r{scene = #scene{spheres = Spheres, substep = Dt, duration = End}, sta
                    lists:max([atomics:get(Lvts, I) || I <- lists:seq(1, Size, 8)])
            end,
     GvtMs = ms(G, R),
-    Raw#{rollbacks => maps:get(primary_rollbacks, Raw) + maps:get(secondary_rollbacks, Raw),
+    SimS = max(1, GvtMs - ms(Start, R)) / 1000,
+    {Messages, Raw1} = take(dist_messages, Raw),
+    {Bytes, Raw2} = take(dist_bytes, Raw1),
+    Nodes = length(maps:get(nodes, R#r.nodes)),
+    Crossing = case Nodes of
+                   1 -> #{};
+                   _ -> #{cross_node_messages => Messages, cross_node_bytes => Bytes, migrations => R#r.migrations,
+                          cross_node_messages_per_s => Messages / SimS, cross_node_bytes_per_s => Bytes / SimS}
+               end,
+    (maps:merge(Raw2, Crossing))#{
+         nodes => Nodes,
+         rollbacks => maps:get(primary_rollbacks, Raw) + maps:get(secondary_rollbacks, Raw),
          committed_substeps => Committed,
          efficiency => case Computed of 0 -> 1.0; _ -> Committed / Computed end,
          gvt => GvtMs, start_ms => ms(Start, R), end_ms => ms(End, R), max_lvt => ms(max(Lead, G), R), wall_ms => Wall,

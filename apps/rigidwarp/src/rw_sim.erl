@@ -4,7 +4,7 @@
 %% argument.
 -module(rw_sim).
 -include("rigidwarp.hrl").
--export([new/5, for_bodies/1, lvt_slot/1]).
+-export([new/5, for_site/4, for_bodies/1, lvt_slot/1]).
 -export_type([options/0, tables/0]).
 
 %% The simulation's working tables (rw_sim_tables) and the run's records
@@ -23,6 +23,8 @@
 %% group is one process, and groups should remain many enough to keep every
 %% scheduler busy.
 -define(DEFAULT_GROUP_MAX, 64).
+%% The LVT of a body on another node, as this node's bodies read it.
+-define(NOT_HERE, 16#FFFFFFFFFFFFFFFF).
 
 -spec new(#scene{}, tables(), tuple(), rw_stats:counters(), options()) -> #sim{}.
 new(#scene{spheres = Spheres, duration = End, frame = Frame, stride = Stride, start = Start} = Scene,
@@ -34,7 +36,7 @@ new(#scene{spheres = Spheres, duration = End, frame = Frame, stride = Stride, st
                  {true, error} -> period(Scene)
              end,
     #sim{scene = Scene, n = length(Spheres), end_t = End, sync = rw_sync:new(Frame, Stride, End, Period, Start),
-         buckets = Buckets, records = Records, counts = Counts, ring = Ring, owners = Owners, procs = Procs,
+         buckets = Buckets, placement = tuple_size(Buckets), records = Records, counts = Counts, ring = Ring, owners = Owners, procs = Procs,
          met = Met, stats = Stats, profile = maps:get(profile, Opts, false),
          lvts = lvts(Spheres, Start),
          gvt_now = gvt_now(), group_max = maps:get(group_max, Opts, ?DEFAULT_GROUP_MAX),
@@ -45,6 +47,20 @@ lvts(Spheres, Start) ->
     Lvts = atomics:new(lvt_slot(lists:max([0 | [I || #sphere{idx = I} <- Spheres]])), [{signed, false}]),
     _ = [atomics:put(Lvts, lvt_slot(I), Start) || Start > 0, #sphere{idx = I} <- Spheres],
     Lvts.
+
+%% The context of one node's share of a simulation over several nodes: its
+%% own bodies (Idxs), tables, counters and GVT process. Only the LVTs of the
+%% bodies here are published here: the others read as never limiting (the
+%% neighbour rule changes only the schedule, and a contact group is never
+%% split over nodes).
+-spec for_site(#sim{}, [non_neg_integer()], tables(), rw_stats:counters()) -> #sim{}.
+for_site(#sim{scene = #scene{spheres = Spheres, start = Start}} = Sim, Idxs,
+         #{records := Records, counts := Counts, owners := Owners, procs := Procs, met := Met}, Stats) ->
+    Lvts = lvts(Spheres, Start),
+    Here = maps:from_keys(Idxs, true),
+    _ = [atomics:put(Lvts, lvt_slot(I), ?NOT_HERE) || #sphere{idx = I} <- Spheres, not is_map_key(I, Here)],
+    Sim#sim{n = length(Idxs), records = Records, counts = Counts, owners = Owners, procs = Procs, met = Met,
+            stats = Stats, lvts = Lvts, gvt_now = gvt_now()}.
 
 %% What a body holds: not the whole scene's bodies, which it never reads
 %% (a copy per body fills the heaps).

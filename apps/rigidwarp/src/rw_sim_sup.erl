@@ -28,10 +28,11 @@
 %% frames, checkpoints, the end and stalls; frames, ring_size,
 %% checkpoint_ms (rw_gvt); watchdog_ms: how long GVT may stand still
 %% before the watchdog speaks.
--type options() :: #{run => pid(), frames => boolean(), ring_size => pos_integer(),
+-type options() :: #{nodes => [node()], run => pid(), frames => boolean(), ring_size => pos_integer(),
                      checkpoint_ms => non_neg_integer(), watchdog_ms => pos_integer(), atom() => term()}.
 %% A process of the simulation, as a fault report names it.
--type who() :: tables | {bucket, non_neg_integer()} | gvt | watchdog | {body, binary()}.
+-type who() :: tables | {bucket, non_neg_integer()} | gvt | watchdog | {body, binary()} | {site, node()}
+             | {site_gvt, node()}.
 
 %% Start the tree of a simulation of Scene (from its start time) with
 %% NBuckets buckets, linked to the caller, over the run's records and ring
@@ -39,33 +40,16 @@
 %% with its name. Its bodies are told to go once every one of them exists.
 -spec start_link(#scene{}, pos_integer(), #{records := ets:tid(), ring := ets:tid()}, rw_stats:counters(),
                  options()) -> {ok, pid(), #sim{}, [{pid(), who()}]} | {error, term()}.
-start_link(#scene{model = M, substep = Dt, spheres = Spheres, initial = Initial} = Scene, NBuckets, RunTables, Stats,
-           Opts) ->
+start_link(Scene, NBuckets, RunTables, Stats, Opts) ->
     {ok, Sup} = supervisor:start_link(?MODULE, sim),
     try
-        {ok, TablesPid} = child(Sup, worker(tables, rw_sim_tables, [])),
+        {ok, TablesPid} = child(Sup, rw_sim_parts:worker(tables, rw_sim_tables, [])),
         Tables = maps:merge(rw_sim_tables:tables(TablesPid), RunTables),
-        Profile = case maps:get(profile, Opts, false) of true -> Stats; false -> undefined end,
-        {ok, BucketSup} = child(Sup, #{id => buckets, type => supervisor, restart => permanent,
-                                      start => {supervisor, start_link, [?MODULE, {buckets, M, Dt, NBuckets, Profile}]}}),
-        Buckets = lists:sort([{I, P} || {{bucket, I}, P, _, _} <- supervisor:which_children(BucketSup)]),
-        Sim0 = rw_sim:new(Scene, Tables, list_to_tuple([P || {_, P} <- Buckets]), Stats, Opts),
-        {ok, Gvt} = child(Sup, worker(gvt, rw_gvt, [Sim0, maps:with([run, frames, ring_size, checkpoint_ms], Opts)])),
-        Sim = Sim0#sim{gvt = Gvt},
-        {ok, Watchdog} = child(Sup, worker(watchdog, rw_watchdog, [Sim, maps:get(run, Opts, undefined),
-                                                                   maps:get(watchdog_ms, Opts, 10000)])),
-        {ok, BodySup} = child(Sup, #{id => bodies, type => supervisor, restart => permanent,
-                                    start => {supervisor, start_link, [?MODULE, bodies]}}),
-        BodySim = rw_sim:for_bodies(Sim),
-        Bodies = [begin
-                      {ok, Pid} = supervisor:start_child(BodySup, [BodySim, Sphere, St]),
-                      {Idx, Id, Pid}
-                  end || {#sphere{idx = Idx, id = Id} = Sphere, St} <- lists:zip(Spheres, Initial)],
-        true = ets:insert(Sim#sim.procs, [{Idx, Pid} || {Idx, _, Pid} <- Bodies]),
-        _ = [Pid ! go || {_, _, Pid} <- Bodies],
-        Named = [{TablesPid, tables}, {Gvt, gvt}, {Watchdog, watchdog}]
-            ++ [{P, {bucket, I}} || {I, P} <- Buckets] ++ [{Pid, {body, Id}} || {_, Id, Pid} <- Bodies],
-        {ok, Sup, Sim, Named}
+        {Sim, Named} = case maps:get(nodes, Opts, [node()]) of
+                           [Node] when Node =:= node() -> one_node(Sup, Scene, NBuckets, Tables, Stats, Opts);
+                           Nodes -> nodes(Sup, Nodes, Scene, NBuckets, Tables, Stats, Opts)
+                       end,
+        {ok, Sup, Sim, [{TablesPid, tables} | Named]}
     catch
         Class:Reason ->
             unlink(Sup),
@@ -73,19 +57,62 @@ start_link(#scene{model = M, substep = Dt, spheres = Spheres, initial = Initial}
             {error, {Class, Reason}}
     end.
 
+one_node(Sup, #scene{model = M, substep = Dt, spheres = Spheres, initial = Initial} = Scene, NBuckets, Tables, Stats,
+         Opts) ->
+    Profile = case maps:get(profile, Opts, false) of true -> Stats; false -> undefined end,
+    {ok, BucketSup} = child(Sup, rw_sim_parts:bucket_pool(M, Dt, NBuckets, Profile)),
+    Buckets = lists:sort([{I, P} || {{bucket, I}, P, _, _} <- supervisor:which_children(BucketSup)]),
+    Sim0 = rw_sim:new(Scene, Tables, list_to_tuple([P || {_, P} <- Buckets]), Stats, Opts),
+    {ok, Gvt} = child(Sup, rw_sim_parts:worker(gvt, rw_gvt, [Sim0, maps:with([run, frames, ring_size, checkpoint_ms], Opts)])),
+    Sim = Sim0#sim{gvt = Gvt},
+    {ok, Watchdog} = child(Sup, rw_sim_parts:worker(watchdog, rw_watchdog, [Sim, maps:get(run, Opts, undefined),
+                                                               maps:get(watchdog_ms, Opts, 10000)])),
+    {ok, BodySup} = child(Sup, rw_sim_parts:body_pool()),
+    Bodies = rw_sim_parts:start_bodies(BodySup, rw_sim:for_bodies(Sim), lists:zip(Spheres, Initial)),
+    _ = [Pid ! go || {_, _, Pid} <- Bodies],
+    {Sim, [{Gvt, gvt}, {Watchdog, watchdog}]
+          ++ [{P, {bucket, I}} || {I, P} <- Buckets] ++ [{Pid, {body, Id}} || {_, Id, Pid} <- Bodies]}.
+
+%% Over several nodes: a site on each (rw_site), the bodies and buckets
+%% placed by space (rw_place), this node's GVT process deciding from the
+%% sites' reports (rw_gvt, rw_gvt_site).
+nodes(Sup, Nodes, #scene{model = M, substep = Dt, spheres = Spheres, initial = Initial, cell_size = Cell} = Scene,
+      NBuckets, Tables, Stats, Opts) ->
+    K = length(Nodes),
+    Per = max(1, NBuckets div K),
+    Place = rw_place:new([P || #st{p = P} <- Initial], K, Per, Cell),
+    Profile = maps:get(profile, Opts, false),
+    Sites = [begin
+                 SiteStats = case Node =:= node() of true -> Stats; false -> undefined end,
+                 SiteOpts = #{model => M, dt => Dt, per => Per, profile => Profile, stats => SiteStats},
+                 {ok, Pid, Buckets} = child(Sup, #{id => {site, I}, start => {rw_site, start_link, [Node, SiteOpts]},
+                                                   restart => permanent, shutdown => 10000, type => worker}),
+                 {I, Node, Pid, Buckets}
+             end || {I, Node} <- lists:zip(lists:seq(0, K - 1), Nodes)],
+    AllBuckets = list_to_tuple(lists:append([B || {_, _, _, B} <- Sites])),
+    Sim0 = (rw_sim:new(Scene, Tables, AllBuckets, Stats, Opts))#sim{placement = Place},
+    {ok, Gvt} = child(Sup, rw_sim_parts:worker(gvt, rw_gvt, [Sim0, maps:with([run, frames, ring_size, checkpoint_ms], Opts)])),
+    Sim = Sim0#sim{gvt = Gvt},
+    {ok, Watchdog} = child(Sup, rw_sim_parts:worker(watchdog, rw_watchdog, [Sim, maps:get(run, Opts, undefined),
+                                                               maps:get(watchdog_ms, Opts, 10000)])),
+    Shares = rw_place:split([{{Sphere, St}, P} || {Sphere, #st{p = P} = St} <- lists:zip(Spheres, Initial)], Place),
+    Started = [{I, rw_site:bodies(Pid, Sim, Share, Gvt)}
+               || {{I, _, Pid, _}, Share} <- lists:zip(Sites, Shares)],
+    Bodies = lists:append([B || {_, {_, B}} <- Started]),
+    true = ets:insert(Sim#sim.procs, [{Idx, Pid} || {Idx, _, Pid} <- Bodies]),
+    SiteOf = maps:from_list([{Idx, I} || {I, {_, B}} <- Started, {Idx, _, _} <- B]),
+    GvtOf = maps:from_list([{Pid, SiteGvt} || {_, {SiteGvt, B}} <- Started, {_, _, Pid} <- B]),
+    Voters = [SiteGvt || {_, {SiteGvt, B}} <- Started, B =/= []],
+    ok = rw_gvt:sites(Gvt, [SiteGvt || {_, {SiteGvt, _}} <- Started], {SiteOf, GvtOf, Voters}),
+    _ = [Pid ! go || {_, _, Pid} <- Bodies],
+    BucketNames = lists:append([[{P, {bucket, I * Per + J}} || {J, P} <- lists:zip(lists:seq(0, length(B) - 1), B)]
+                                || {I, _, _, B} <- Sites]),
+    {Sim, [{Gvt, gvt}, {Watchdog, watchdog}]
+          ++ [{Pid, {site, Node}} || {_, Node, Pid, _} <- Sites]
+          ++ [{SiteGvt, {site_gvt, node(SiteGvt)}} || {_, {SiteGvt, _}} <- Started]
+          ++ BucketNames ++ [{Pid, {body, Id}} || {_, Id, Pid} <- Bodies]}.
+
 child(Sup, Spec) -> supervisor:start_child(Sup, Spec).
 
-worker(Id, Mod, Args) ->
-    #{id => Id, start => {Mod, start_link, Args}, restart => permanent, shutdown => 1000, type => worker}.
-
--spec init(sim | {buckets, #model{}, pos_integer(), pos_integer(), rw_stats:counters() | undefined} | bodies) ->
-          {ok, {supervisor:sup_flags(), [supervisor:child_spec()]}}.
-init(sim) ->
-    {ok, {#{strategy => rest_for_one, intensity => 0, period => 1}, []}};
-init({buckets, M, Dt, N, Profile}) ->
-    {ok, {#{strategy => one_for_all, intensity => 0, period => 1},
-          [#{id => {bucket, I}, start => {rw_bucket, start_link, [M, Dt, Profile]}, restart => permanent,
-             shutdown => 1000} || I <- lists:seq(0, N - 1)]}};
-init(bodies) ->
-    {ok, {#{strategy => simple_one_for_one, intensity => 0, period => 1},
-          [#{id => body, start => {rw_body, start_link, []}, restart => temporary, shutdown => 1000}]}}.
+-spec init(sim) -> {ok, {supervisor:sup_flags(), [supervisor:child_spec()]}}.
+init(sim) -> rw_sim_parts:init(sim).

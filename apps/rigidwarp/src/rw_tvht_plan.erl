@@ -14,9 +14,11 @@
 -type where() :: [{non_neg_integer(), [rw_hash:cell()]}].
 
 %% The write of an entity's step: Writer's members Spheres (a tuple, in
-%% member order) with their packed states Steps from T0 on, and its plan.
+%% member order) with their packed states Steps from T0 on, and its plan
+%% over a pool of NBuckets buckets or a placement of buckets on several
+%% nodes.
 -spec write(term(), non_neg_integer(), tuple(), [rw_states:packed()], #model{}, {float(), pos_integer()},
-            pos_integer()) -> {rw_cells:write(), plan()}.
+            pos_integer() | rw_place:placement()) -> {rw_cells:write(), plan()}.
 write(Writer, T0, Spheres, Steps, #model{ccd = Ccd}, {CellSize, Dt}, NBuckets) ->
     Members = [member_write(Writer, element(K, Spheres), T0, Packed, Ccd)
                || {K, Packed} <- lists:zip(lists:seq(1, length(Steps)), Steps)],
@@ -149,7 +151,11 @@ plan(MemberSpans, NB) ->
     ByBucket = maps:fold(fun(Cell, [{_, Ta0, Tb0} | _] = Ms, Acc) ->
                                  {Ta, Tb} = lists:foldl(fun({_, A, B}, {L, H}) -> {min(A, L), max(B, H)} end,
                                                         {Ta0, Tb0}, Ms),
-                                 maps:update_with(rw_hash:bucket(Cell, NB), fun(L) -> [{Cell, Ta, Tb, Ms} | L] end,
+                                 maps:update_with(bucket(Cell, NB), fun(L) -> [{Cell, Ta, Tb, Ms} | L] end,
                                                   [{Cell, Ta, Tb, Ms}], Acc)
                          end, #{}, ByCell),
     [{B, lists:sort([C || {C, _, _, _} <- Spans]), Spans} || {B, Spans} <- lists:sort(maps:to_list(ByBucket))].
+
+%% A pool of NB buckets on one node, or a placement over several (rw_place).
+bucket(Cell, NB) when is_integer(NB) -> rw_hash:bucket(Cell, NB);
+bucket(Cell, Place) -> rw_place:bucket(Cell, Place).

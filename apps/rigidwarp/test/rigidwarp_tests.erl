@@ -12,6 +12,7 @@ good(non_neg) -> 0;
 good(boolean) -> true;
 good(path) -> "x.jsonl";
 good(callback) -> fun(_) -> ok end;
+good(nodes) -> 2;
 good({one_of, [A | _]}) -> A.
 
 bad(ms) -> -1;
@@ -20,6 +21,7 @@ bad(non_neg) -> -1;
 bad(boolean) -> yes;
 bad(path) -> 42;
 bad(callback) -> fun() -> ok end;
+bad(nodes) -> [not_a_node_name];
 bad({one_of, _}) -> "not one of them".
 
 every_option_is_checked_as_the_table_says_test_() ->

@@ -6,7 +6,15 @@
 -define(RUN_HELP,
 "  run SCENE [options]        run a scene; the summary JSON is the last line on stdout
       --engine ENGINE        timewarp (default, parallel) or reference (sequential oracle)
-      --schedulers N         scheduler threads for the timewarp engine (default: all cores)
+      --schedulers N         scheduler threads for the timewarp engine (default: all cores;
+                             with --nodes, of each node)
+      --nodes N              timewarp: run over N Erlang nodes, this one and N-1 peer nodes
+                             started here (loopback only) and stopped at the end
+      --connect A@H,B@H      timewarp: run over this node and running nodes A@H, B@H, ...
+      --cookie COOKIE        with --connect: the nodes' cookie (default: $RIGIDWARP_COOKIE,
+                             else ~/.erlang.cookie); the summary then says what the nodes
+                             sent each other (cross_node_*, in all and per simulated second)
+                             and how often bodies were placed anew (migrations)
       --buckets N            TVHT bucket processes (default: the scene's buckets, else 64)
       --frames FILE          write committed frames as JSON Lines to FILE (- for stdout);
                              a file is written as FILE.part with FILE.checkpoint beside it
@@ -29,6 +37,8 @@
                              timewarp: events, antievents, rollbacks, primary_rollbacks,
                              secondary_rollbacks, rolled_back_substeps, computed_substeps,
                              committed_substeps, efficiency, steps, regroups, restarts,
+                             nodes, cross_node_messages, cross_node_bytes,
+                             cross_node_messages_per_s, cross_node_bytes_per_s, migrations,
                              resumed_from_ms;
                              reference: substeps, body_substeps, pair_contacts, fixture_contacts,
                              resumed_from_ms

@@ -6,7 +6,7 @@
 -module(rw_cli_args).
 -export([parse/1, bad_flag/2, pos_int/2, pos_ms/2, format_ms/1, shell_quote/1]).
 
--define(VALUE_FLAGS, ["--engine", "--schedulers", "--buckets", "--frames", "--until", "--substep",
+-define(VALUE_FLAGS, ["--engine", "--schedulers", "--nodes", "--connect", "--cookie", "--buckets", "--frames", "--until", "--substep",
                       "--stride", "--frame-ms", "--integrator", "--ccd", "--groups", "--group-max"]).
 
 %% Flags to {SceneFile, Options, Quiet}.
@@ -16,6 +16,16 @@ parse(Args) -> parse(Args, undefined, #{}, false).
 parse([], undefined, _, _) -> throw({usage, "run needs a scene file"});
 parse([], _, #{resume := true} = Opts, _) when not is_map_key(frames, Opts) ->
     throw({bad_input, "--resume needs --frames FILE (the file of the run to continue)"});
+parse([], _, #{nodes := N, connect := _}, _) when is_integer(N) ->
+    throw({usage, "--nodes and --connect do not go together: --connect names the nodes to use besides this one"});
+parse([], _, #{cookie := _} = Opts, _) when not is_map_key(connect, Opts) ->
+    throw({usage, "--cookie goes with --connect (the peer nodes of --nodes get a cookie of their own)"});
+parse([], File, #{connect := Nodes} = Opts, Quiet) ->
+    _ = case Opts of
+            #{cookie := Cookie} -> os:putenv("RIGIDWARP_COOKIE", Cookie);
+            #{} -> true
+        end,
+    {File, maps:without([connect, cookie], Opts#{nodes => Nodes}), Quiet};
 parse([], File, Opts, Quiet) -> {File, Opts, Quiet};
 parse(["--quiet" | Rest], F, O, _) -> parse(Rest, F, O, true);
 parse(["--resume" | Rest], F, O, Q) -> parse(Rest, F, O#{resume => true}, Q);
@@ -28,6 +38,16 @@ parse(["--schedulers", V | Rest], F, O, Q) ->
     N =< Max orelse throw({usage, lists:flatten(io_lib:format("--schedulers must be at most ~b here, got ~s",
                                                               [Max, V]))}),
     parse(Rest, F, O#{schedulers => N}, Q);
+parse(["--nodes", V | Rest], F, O, Q) ->
+    N = pos_int("--nodes", V),
+    N =< 64 orelse throw({usage, "--nodes must be at most 64, got " ++ V}),
+    parse(Rest, F, O#{nodes => N}, Q);
+parse(["--connect", V | Rest], F, O, Q) ->
+    Nodes = [string:trim(N) || N <- string:split(V, ",", all), string:trim(N) =/= ""],
+    (Nodes =/= [] andalso lists:all(fun(N) -> length(string:split(N, "@")) =:= 2 end, Nodes)) orelse
+        throw({usage, "--connect takes node names as name@host, separated by commas, got " ++ V}),
+    parse(Rest, F, O#{connect => [list_to_atom(N) || N <- Nodes]}, Q);
+parse(["--cookie", V | Rest], F, O, Q) when V =/= "" -> parse(Rest, F, O#{cookie => V}, Q);
 parse(["--buckets", V | Rest], F, O, Q) -> parse(Rest, F, O#{buckets => pos_int("--buckets", V)}, Q);
 parse(["--frames", Out | Rest], F, O, Q) -> parse(Rest, F, O#{frames => Out}, Q);
 parse(["--until", V | Rest], F, O, Q) -> parse(Rest, F, O#{until => pos_ms("--until", V)}, Q);

@@ -11,7 +11,8 @@
 -define(COMMON_KEYS, [scene, engine, bodies, substep_ms, stride_ms, sim_ms, wall_ms, realtime_factor, frames]).
 -define(TIMEWARP_KEYS, [events, antievents, rollbacks, primary_rollbacks, secondary_rollbacks, rolled_back_substeps,
                         computed_substeps, committed_substeps, efficiency, steps, regroups, restarts,
-                        resumed_from_ms]).
+                        nodes, cross_node_messages, cross_node_bytes, cross_node_messages_per_s,
+                        cross_node_bytes_per_s, migrations, resumed_from_ms]).
 -define(REFERENCE_KEYS, [substeps, body_substeps, pair_contacts, fixture_contacts, resumed_from_ms]).
 
 %% The progress line on stderr: redrawn in place (4 times a second) on a

@@ -1,0 +1,47 @@
+%% The parts that the tree of a simulation on one node (rw_sim_sup) and
+%% the tree of one node's site of a simulation over several (rw_site) are
+%% built of: supervisors of no restarts (a process of a simulation shares
+%% state no other can rebuild: the run restarts the whole simulation), the
+%% pool of buckets, the bodies' supervisor, child specs.
+-module(rw_sim_parts).
+-behaviour(supervisor).
+-include("rigidwarp.hrl").
+-export([worker/3, bucket_pool/4, body_pool/0, start_bodies/3, init/1]).
+
+%% Start a body for each {Sphere, State}: [{Idx, Id, Pid}].
+-spec start_bodies(pid(), #sim{}, [{#sphere{}, #st{}}]) -> [{non_neg_integer(), binary(), pid()}].
+start_bodies(BodySup, Sim, Bodies) ->
+    Started = [begin
+                   {ok, Pid} = supervisor:start_child(BodySup, [Sim, Sphere, St]),
+                   {Idx, Id, Pid}
+               end || {#sphere{idx = Idx, id = Id} = Sphere, St} <- Bodies],
+    true = ets:insert(Sim#sim.procs, [{Idx, Pid} || {Idx, _, Pid} <- Started]),
+    Started.
+
+%% The child spec of a pool of N buckets.
+-spec bucket_pool(#model{}, pos_integer(), pos_integer(), rw_stats:counters() | undefined) -> supervisor:child_spec().
+bucket_pool(M, Dt, N, Profile) ->
+    #{id => buckets, type => supervisor, restart => permanent,
+      start => {supervisor, start_link, [?MODULE, {buckets, M, Dt, N, Profile}]}}.
+
+%% The child spec of the bodies' supervisor.
+-spec body_pool() -> supervisor:child_spec().
+body_pool() ->
+    #{id => bodies, type => supervisor, restart => permanent, start => {supervisor, start_link, [?MODULE, bodies]}}.
+
+%% The child spec of a worker.
+-spec worker(atom(), module(), [term()]) -> supervisor:child_spec().
+worker(Id, Mod, Args) ->
+    #{id => Id, start => {Mod, start_link, Args}, restart => permanent, shutdown => 1000, type => worker}.
+
+-spec init(sim | {buckets, #model{}, pos_integer(), pos_integer(), rw_stats:counters() | undefined} | bodies) ->
+          {ok, {supervisor:sup_flags(), [supervisor:child_spec()]}}.
+init(sim) ->
+    {ok, {#{strategy => rest_for_one, intensity => 0, period => 1}, []}};
+init({buckets, M, Dt, N, Profile}) ->
+    {ok, {#{strategy => one_for_all, intensity => 0, period => 1},
+          [#{id => {bucket, I}, start => {rw_bucket, start_link, [M, Dt, Profile]}, restart => permanent,
+             shutdown => 1000} || I <- lists:seq(0, N - 1)]}};
+init(bodies) ->
+    {ok, {#{strategy => simple_one_for_one, intensity => 0, period => 1},
+          [#{id => body, start => {rw_body, start_link, []}, restart => temporary, shutdown => 1000}]}}.

@@ -1,0 +1,266 @@
+%% One simulation over several Erlang nodes: its frames equal the
+%% reference's bit for bit on 1, 2 and 3 nodes (contact-heavy scenes and
+%% random ones), a node lost mid-run costs nothing, and the peer nodes a
+%% run starts are gone when it ends, however it ends.
+%%
+%% Most cases run over two peer nodes the suite starts once (a run given
+%% node names connects to them and loads the engine there); the cases of
+%% node loss and of node lifetime let the run start its own peers.
+-module(nodes_SUITE).
+-include_lib("proper/include/proper.hrl").
+-include_lib("common_test/include/ct.hrl").
+-include_lib("stdlib/include/assert.hrl").
+-include_lib("rigidwarp/include/rigidwarp.hrl").
+-include("rw_test.hrl").
+-export([all/0, suite/0, init_per_suite/1, end_per_suite/1]).
+-export([every_scenario_equal/1, contact_scenes_equal/1, random_scenes_equal/1, own_peers_equal_and_stopped/1, node_killed_mid_run/1,
+         node_stopped_mid_run/1, bodies_move_to_the_node_of_their_space/1, peers_stopped_however_the_run_ends/1, cross_node_traffic_is_counted/1,
+         bad_nodes_are_refused/1]).
+
+suite() -> [{timetrap, {minutes, 10}}].
+
+all() -> [every_scenario_equal, contact_scenes_equal, random_scenes_equal, own_peers_equal_and_stopped, node_killed_mid_run,
+          node_stopped_mid_run, bodies_move_to_the_node_of_their_space, peers_stopped_however_the_run_ends, cross_node_traffic_is_counted,
+          bad_nodes_are_refused].
+
+%% Piles, cylinders, a dense gas and obstacles, over parts with contacts
+%% all along.
+-define(SCENES, [{"pile_40", test, 1200}, {"rain_on_logs", test, 800}, {"cylinders_200", scenario, 1500},
+                 {"bouncing_200_400", scenario, 800}]).
+
+init_per_suite(Config) ->
+    {ok, _} = application:ensure_all_started(rigidwarp),
+    logger:set_application_level(rigidwarp, error),
+    %% the first run over several nodes makes this node distributed
+    {ok, Started} = rw_nodes:start(1, undefined),
+    ok = rw_nodes:stop(Started),
+    Scenes = [begin
+                  File = case Where of
+                             scenario -> rw_test_lib:scenario(Name ++ ".json");
+                             test -> rw_test_lib:test_scene(Name ++ ".json")
+                         end,
+                  {ok, Scene} = rigidwarp:load(File, #{until => Until}),
+                  {Name, {Scene, reference_frames(Scene)}}
+              end || {Name, Where, Until} <- ?SCENES],
+    [{scenes, Scenes} | Config].
+
+end_per_suite(Config) ->
+    _ = [catch peer:stop(P) || {_, P} <- proplists:get_value(peers, Config, [])],
+    logger:unset_application_level(rigidwarp),
+    ok.
+
+%% Two peers of the suite's own, stopped at the end of the case.
+with_peers(Fun) ->
+    {ok, #{nodes := [_ | Nodes]} = Started} = rw_nodes:start(3, 1),
+    try Fun(Nodes) after rw_nodes:stop(Started) end.
+
+reference_frames(Scene) ->
+    Self = self(),
+    {ok, _} = rw_reference:run(Scene, #{on_frame => fun(F) -> Self ! {reference, F} end}),
+    drain(reference).
+
+drain(Tag) -> receive {Tag, F} -> [F | drain(Tag)] after 0 -> [] end.
+
+frames(Scene, Opts) ->
+    Self = self(),
+    Ref = make_ref(),
+    Result = rw_timewarp:run(Scene, Opts#{on_frame => fun(F) -> Self ! {Ref, F} end}),
+    {Result, drain(Ref)}.
+
+%%% Cases
+
+%% Every bundled scenario, over the part engine_SUITE compares, on 2 and 3
+%% nodes.
+every_scenario_equal(_Config) ->
+    with_peers(
+      fun([A, B]) ->
+              Files = engine_SUITE:scenario_files(),
+              [begin
+                   {ok, Scene} = rigidwarp:load(F, #{until => engine_SUITE:until(F)}),
+                   Reference = reference_frames(Scene),
+                   [begin
+                        {Result, Frames} = frames(Scene, #{nodes => Nodes}),
+                        ?assertMatch({ok, #{restarts := 0}}, Result),
+                        ?assertBitwise(Reference, Frames)
+                    end || Nodes <- [[A], [A, B]]]
+               end || F <- Files],
+              {comment, io_lib:format("~b scenarios x 2 and 3 nodes", [length(Files)])}
+      end).
+
+%% Every contact-heavy scene on 1, 2 and 3 nodes: the reference's frames.
+contact_scenes_equal(Config) ->
+    with_peers(
+      fun([A, B]) ->
+              [begin
+                   {Result, Frames} = frames(Scene, #{nodes => Nodes}),
+                   ?assertMatch({ok, _}, Result),
+                   {ok, #{restarts := 0}} = Result,
+                   ?assertBitwise(Reference, Frames),
+                   ct:pal("~s: ~b frames equal on ~b node(s)", [Name, length(Frames), length(Nodes) + 1])
+               end || {Name, {Scene, Reference}} <- ?config(scenes, Config), Nodes <- [[], [A], [A, B]]],
+              ok
+      end).
+
+%% Random scenes (engine_SUITE's: gases, piles, obstacles, contact groups
+%% on or off, any stride and bucket count) on 2 and 3 nodes.
+random_scenes_equal(_Config) ->
+    with_peers(
+      fun([A, B]) ->
+              Prop = ?FORALL({SceneMap, Stride, Buckets, Nodes, Groups},
+                             {engine_SUITE:scene_map(), engine_SUITE:stride(), oneof([2, 4, 16]),
+                              oneof([[A], [A, B]]), engine_SUITE:group_options()},
+                             case rw_scene:from_map(SceneMap#{<<"stride_ms">> => Stride * maps:get(<<"substep_ms">>, SceneMap)},
+                                                    #{}) of
+                                 {error, _} ->
+                                     true;
+                                 {ok, Scene} ->
+                                     Reference = reference_frames(Scene),
+                                     {Result, Frames} = frames(Scene, Groups#{buckets => Buckets, nodes => Nodes}),
+                                     ?WHENFAIL(ct:pal("scene ~p~nstride ~p, ~p buckets, nodes ~p, ~p: ~P~nfirst difference ~p",
+                                                      [SceneMap, Stride, Buckets, Nodes, Groups, Result, 8,
+                                                       rw_test_lib:first_difference(Reference, Frames)]),
+                                               collect(length(Nodes) + 1,
+                                                       element(1, Result) =:= ok andalso
+                                                       rw_test_lib:bitwise_equal(Reference, Frames)))
+                             end),
+              true = proper:quickcheck(Prop, [{numtests, 40}, {to_file, user}, long_result]),
+              ok
+      end).
+
+%% A run that starts its own peer nodes (nodes => N) gives the same frames,
+%% and its peers are gone when it returns.
+own_peers_equal_and_stopped(Config) ->
+    {Scene, Reference} = proplists:get_value("pile_40", ?config(scenes, Config)),
+    Before = nodes(),
+    {Result, Frames} = frames(Scene, #{nodes => 3, schedulers => 1}),
+    ?assertMatch({ok, _}, Result),
+    ?assertBitwise(Reference, Frames),
+    ?assertEqual([], wait_for_nodes(Before)),
+    ok.
+
+%% A peer node killed mid-run (kill -9 of its OS process): the run goes on
+%% from its latest checkpoint on the nodes left, and its frames are the
+%% reference's.
+node_killed_mid_run(Config) ->
+    lose_a_node(Config, fun(Node) ->
+                                OsPid = erpc:call(Node, os, getpid, []),
+                                os:cmd("kill -9 " ++ OsPid)
+                        end).
+
+%% The same when a peer node is stopped (peer:stop/1).
+node_stopped_mid_run(Config) ->
+    lose_a_node(Config, fun(Run, Node) ->
+                                #{peers := Peers} = rw_run:nodes(Run),
+                                {Node, Peer} = lists:keyfind(Node, 1, Peers),
+                                peer:stop(Peer)
+                        end).
+
+lose_a_node(Config, Kill) when is_function(Kill, 1) ->
+    lose_a_node(Config, fun(_Run, Node) -> Kill(Node) end);
+lose_a_node(Config, Kill) ->
+    {Scene, Reference} = proplists:get_value("pile_40", ?config(scenes, Config)),
+    Self = self(),
+    Before = nodes(),
+    OnFrame = fun({frame, 400, _} = F) ->
+                      [Run] = [P || {_, P, _, _} <- supervisor:which_children(rw_sims_sup)],
+                      %% a node with bodies of the pile
+                      [Node | _] = [N || {P, {body, _}} <- rw_run:processes(Run), N <- [node(P)], N =/= node()],
+                      _ = Kill(Run, Node),
+                      Self ! {killed, Node},
+                      Self ! {frame, F};
+                 (F) -> Self ! {frame, F}
+              end,
+    Result = rw_timewarp:run(Scene, #{nodes => 3, schedulers => 1, checkpoint_ms => 50, on_frame => OnFrame}),
+    Frames = drain(frame),
+    Killed = receive {killed, N} -> N after 0 -> none end,
+    ?assertNotEqual(none, Killed),
+    ?assertMatch({ok, #{restarts := R}} when R >= 1, Result),
+    ?assertBitwise(Reference, Frames),
+    ?assertEqual([], wait_for_nodes(Before)),
+    ok.
+
+%% Two columns of spheres pass each other along x, through the cut between
+%% the two nodes' slabs, and a few meet at the walls of a box: once a
+%% checkpoint finds a tenth of the bodies in the other node's slab, the run
+%% places them anew, and the frames stay the reference's.
+bodies_move_to_the_node_of_their_space(_Config) ->
+    Column = fun(Prefix, X, Vx) ->
+                     #{<<"type">> => <<"grid">>, <<"id_prefix">> => Prefix, <<"count">> => [3, 4, 3],
+                       <<"origin">> => [X, -3.0, -2.0], <<"spacing">> => [1.5, 1.5, 1.5], <<"radius">> => 0.5,
+                       <<"mass">> => 1.0, <<"velocity">> => [Vx, 0.0, 0.0]}
+             end,
+    Map = #{<<"name">> => <<"crossing">>, <<"duration_ms">> => 1500, <<"substep_ms">> => 1, <<"frame_ms">> => 10,
+            <<"stride_ms">> => 32, <<"model">> => #{<<"restitution">> => 0.9},
+            <<"bodies">> => [#{<<"id">> => <<"box">>, <<"shape">> => <<"box">>, <<"static">> => true,
+                               <<"hollow">> => true, <<"position">> => [0.0, 0.0, 0.0],
+                               <<"half_extents">> => [14.0, 6.0, 8.0]}],
+            %% the columns' lanes are apart in z: they pass without meeting
+            <<"generators">> => [Column(<<"a">>, -10.0, 12.0),
+                                 maps:update_with(<<"origin">>, fun([X, Y, _]) -> [X, Y, 3.0] end, Column(<<"b">>, 7.0, -12.0))]},
+    {ok, Scene} = rw_scene:from_map(Map, #{}),
+    Reference = reference_frames(Scene),
+    with_peers(
+      fun([A, _]) ->
+              {Result, Frames} = frames(Scene, #{nodes => [A], checkpoint_ms => 20}),
+              ?assertMatch({ok, #{migrations := M, restarts := 0}} when M >= 1, Result),
+              ?assertBitwise(Reference, Frames),
+              {ok, #{migrations := M}} = Result,
+              {comment, io_lib:format("~b migrations", [M])}
+      end).
+
+%% The peers of a run go when it is stopped, when it crashes past its
+%% budget, and when its process is killed.
+peers_stopped_however_the_run_ends(Config) ->
+    {Scene, _} = proplists:get_value("pile_40", ?config(scenes, Config)),
+    Before = nodes(),
+    {ok, Sim} = rigidwarp:start(Scene#scene.file, #{until => 1200, nodes => 2}),
+    ?assertMatch([_], nodes() -- Before),
+    ok = rigidwarp:stop(Sim),
+    ?assertEqual([], wait_for_nodes(Before)),
+    {ok, {rw_sim, Run, _} = Sim2} = rigidwarp:start(Scene#scene.file, #{until => 1200, nodes => 2, max_restarts => 0}),
+    [Body | _] = [P || {P, {body, _}} <- rw_run:processes(Run), node(P) =/= node()],
+    exit(Body, kill),
+    ?assertMatch({error, {crashed, _, _}}, rigidwarp:await(Sim2, 10000)),
+    ok = rigidwarp:stop(Sim2),
+    ?assertEqual([], wait_for_nodes(Before)),
+    {ok, {rw_sim, Run3, _}} = rigidwarp:start(Scene#scene.file, #{until => 1200, nodes => 2}),
+    exit(Run3, kill),
+    ?assertEqual([], wait_for_nodes(Before)),
+    ok.
+
+%% stats/1 and the summary count what crossed between nodes.
+cross_node_traffic_is_counted(Config) ->
+    {Scene, _} = proplists:get_value("pile_40", ?config(scenes, Config)),
+    with_peers(
+      fun([A, _]) ->
+              {ok, One} = rw_timewarp:run(Scene, #{}),
+              {ok, Two} = rw_timewarp:run(Scene, #{nodes => [A]}),
+              ?assertEqual(1, maps:get(nodes, One)),
+              ?assertEqual(2, maps:get(nodes, Two)),
+              ?assertNot(maps:is_key(cross_node_messages, One)),
+              ?assert(maps:get(cross_node_messages, Two) > 0),
+              ?assert(maps:get(cross_node_bytes, Two) > maps:get(cross_node_messages, Two)),
+              ok
+      end).
+
+bad_nodes_are_refused(Config) ->
+    {Scene, _} = proplists:get_value("pile_40", ?config(scenes, Config)),
+    File = Scene#scene.file,
+    {error, Message} = rigidwarp:run(File, #{nodes => 0}),
+    ?assertNotEqual(nomatch, string:find(Message, "nodes")),
+    {error, _} = rigidwarp:run(File, #{nodes => [not_a_node]}),
+    {error, Unreachable} = rigidwarp:run(File, #{nodes => ['nobody_here@127.0.0.1']}),
+    ?assertNotEqual(nomatch, string:find(Unreachable, "nobody_here@127.0.0.1")),
+    ?assertEqual([], supervisor:which_children(rw_sims_sup)),
+    ok.
+
+%% The nodes connected now but not in Before, once given a few seconds to
+%% go.
+wait_for_nodes(Before) -> wait_for_nodes(Before, 100).
+
+wait_for_nodes(Before, 0) -> nodes() -- Before;
+wait_for_nodes(Before, Tries) ->
+    case nodes() -- Before of
+        [] -> [];
+        _ -> timer:sleep(50), wait_for_nodes(Before, Tries - 1)
+    end.
