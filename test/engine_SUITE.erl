@@ -14,7 +14,7 @@
 -include("rw_test.hrl").
 -export([all/0, groups/0, suite/0, init_per_suite/1, end_per_suite/1]).
 %% the random scenes, for nodes_SUITE
--export([scene_map/0, stride/0, group_options/0, scenario_files/0, until/1]).
+-export([scene_map/0, pile/0, stride/0, group_options/0, scenario_files/0, until/1]).
 -export([scenarios_equal/1, contact_scenes_equal/1, strides_and_buckets_equal/1, random_scenes_equal/1,
          random_delays_terminate_and_equal/1, watchdog_names_stuck_body/1,
          no_leaks_after_100_runs/1, escript_frames_identical/1, frames_api/1, frame_times_only/1, ring_keeps_last_frames/1,

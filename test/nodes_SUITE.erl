@@ -13,13 +13,13 @@
 -include_lib("rigidwarp/include/rigidwarp.hrl").
 -include("rw_test.hrl").
 -export([all/0, suite/0, init_per_suite/1, end_per_suite/1]).
--export([every_scenario_equal/1, contact_scenes_equal/1, random_scenes_equal/1, own_peers_equal_and_stopped/1, node_killed_mid_run/1,
+-export([every_scenario_equal/1, contact_scenes_equal/1, random_scenes_equal/1, piles_regroup_across_batches/1, own_peers_equal_and_stopped/1, node_killed_mid_run/1,
          node_stopped_mid_run/1, bodies_move_to_the_node_of_their_space/1, peers_stopped_however_the_run_ends/1, cross_node_traffic_is_counted/1,
          bad_nodes_are_refused/1]).
 
 suite() -> [{timetrap, {minutes, 10}}].
 
-all() -> [every_scenario_equal, contact_scenes_equal, random_scenes_equal, own_peers_equal_and_stopped, node_killed_mid_run,
+all() -> [every_scenario_equal, contact_scenes_equal, random_scenes_equal, piles_regroup_across_batches, own_peers_equal_and_stopped, node_killed_mid_run,
           node_stopped_mid_run, bodies_move_to_the_node_of_their_space, peers_stopped_however_the_run_ends, cross_node_traffic_is_counted,
           bad_nodes_are_refused].
 
@@ -115,7 +115,9 @@ random_scenes_equal(_Config) ->
                                      true;
                                  {ok, Scene} ->
                                      Reference = reference_frames(Scene),
-                                     {Result, Frames} = frames(Scene, Groups#{buckets => Buckets, nodes => Nodes}),
+                                     %% no fault is injected: any restart is a bug
+                                     {Result, Frames} = frames(Scene, Groups#{buckets => Buckets, nodes => Nodes,
+                                                                              max_restarts => 0, watchdog_ms => 5000}),
                                      ?WHENFAIL(ct:pal("scene ~p~nstride ~p, ~p buckets, nodes ~p, ~p: ~P~nfirst difference ~p",
                                                       [SceneMap, Stride, Buckets, Nodes, Groups, Result, 8,
                                                        rw_test_lib:first_difference(Reference, Frames)]),
@@ -124,6 +126,30 @@ random_scenes_equal(_Config) ->
                                                        rw_test_lib:bitwise_equal(Reference, Frames)))
                              end),
               true = proper:quickcheck(Prop, [{numtests, 40}, {to_file, user}, long_result]),
+              ok
+      end).
+
+%% Piles with contact groups planned from the pairs that met: a batch of
+%% sync points that GVT confirms may pass a regroup point that was quiet
+%% when it was asked for and met pairs since; GVT must stop before the
+%% next regroup point once entities are told to stop there (it once went
+%% past it, and an entity rolled back to a sync point GVT had passed: about
+%% 3 pile runs in 200 crashed so).
+piles_regroup_across_batches(_Config) ->
+    with_peers(
+      fun([A, _]) ->
+              Prop = ?FORALL({SceneMap, Stride}, {engine_SUITE:pile(), engine_SUITE:stride()},
+                             case rw_scene:from_map(SceneMap#{<<"stride_ms">> => Stride * maps:get(<<"substep_ms">>, SceneMap)},
+                                                    #{}) of
+                                 {error, _} ->
+                                     true;
+                                 {ok, Scene} ->
+                                     Reference = reference_frames(Scene),
+                                     {Result, Frames} = frames(Scene, #{nodes => [A], max_restarts => 0, watchdog_ms => 5000}),
+                                     ?WHENFAIL(ct:pal("scene ~p, stride ~p: ~P", [SceneMap, Stride, Result, 8]),
+                                               element(1, Result) =:= ok andalso rw_test_lib:bitwise_equal(Reference, Frames))
+                             end),
+              true = proper:quickcheck(Prop, [{numtests, 60}, {to_file, user}, long_result]),
               ok
       end).
 

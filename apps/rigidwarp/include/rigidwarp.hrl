@@ -27,8 +27,11 @@
 }).
 
 %% What every process of one Time Warp simulation shares: built once by
-%% rw_sim:new/4 before any process of the simulation starts (the GVT
-%% process's pid excepted, which the processes started after it get).
+%% rw_sim:new/5 before any process of the simulation starts (the GVT
+%% process's pid excepted, which the processes started after it get). Its
+%% tables, atomics and counters are those of one node: sent to another
+%% node it goes without them (rw_sim:portable/1), and the site there puts
+%% in its own (rw_sim:for_site/4).
 -record(sim, {
     scene :: #scene{},
     n :: non_neg_integer(),                   % dynamic bodies (of this node's site, on several nodes)
@@ -39,16 +42,16 @@
     %% placement over several (rw_place)
     placement :: pos_integer() | rw_place:placement(),
     gvt :: pid() | undefined,
-    records :: ets:tid(),                     % committed states (rw_commits)
-    counts :: ets:tid(),                      % bodies committed per sync point (rw_commits)
-    ring :: ets:tid(),                        % committed frames (rw_ring)
-    owners :: ets:tid(),                      % {Idx, Pid}: the entity that steps body Idx
-    procs :: ets:tid(),                       % {Idx, Pid}: the process of body Idx
-    met :: ets:tid(),                         % {{A, B}, T}: A met B at many substeps (rw_neighbour)
-    stats :: rw_stats:counters(),
+    records :: ets:tid() | undefined,         % committed states (rw_commits)
+    counts :: ets:tid() | undefined,          % bodies committed per sync point (rw_commits)
+    ring :: ets:tid() | undefined,            % committed frames (rw_ring)
+    owners :: ets:tid() | undefined,          % {Idx, Pid}: the entity that steps body Idx
+    procs :: ets:tid() | undefined,           % {Idx, Pid}: the process of body Idx
+    met :: ets:tid() | undefined,             % {{A, B}, T}: A met B at many substeps (rw_neighbour)
+    stats :: rw_stats:counters() | undefined,
     profile = false :: boolean(),             % count the engine's stages (rw_stats)
-    lvts :: atomics:atomics_ref(),            % every body's LVT, at rw_sim:lvt_slot(Idx)
-    gvt_now :: atomics:atomics_ref(),         % GVT (slot 1), which bodies read when they step
+    lvts :: atomics:atomics_ref() | undefined,   % every body's LVT, at rw_sim:lvt_slot(Idx)
+    gvt_now :: atomics:atomics_ref() | undefined, % GVT (slot 1), which bodies read when they step
     %% contact groups (rw_regroup): the most bodies in one group, and how
     %% groups are planned (eager: tests only)
     group_max = 1 :: pos_integer(),

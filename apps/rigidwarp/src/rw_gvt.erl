@@ -345,11 +345,17 @@ confirmable(Next, #s{sim = #sim{sync = Cal, end_t = End}, unready = U, multi = #
         false -> [];
         true when Next >= End -> [Next];
         true ->
-            case regroup_point(Next, S) of
+            %% a batch ends at a regroup point where groups may change (the
+            %% plan there holds GVT before the next), and goes on past one
+            %% where nothing can
+            case regroup_point(Next, S) andalso not quiet_at(Next, S) of
                 true -> [Next];
                 false -> [Next | confirmable(rw_sync:after_gvt(Next, Cal), S)]
             end
     end.
+
+quiet_at(X, #s{sim = #sim{sync = Cal}, groups = Groups} = S) ->
+    rw_regroup:quiet(element(1, met_since(X - rw_sync:period(Cal), S)), Groups).
 
 regroup_point(X, #s{sim = #sim{sync = Cal, end_t = End}}) ->
     case rw_sync:period(Cal) of
@@ -361,15 +367,14 @@ regroup_point(X, #s{sim = #sim{sync = Cal, end_t = End}}) ->
 %% run shows or keeps (all when it asked for frames or its ring keeps more
 %% than one, else the last), a checkpoint when one is due, regroup points
 %% where contact groups may change.
-need(Ts, #s{sim = #sim{sync = Cal, end_t = End}, groups = Groups} = S) ->
+need(Ts, #s{sim = #sim{sync = Cal, end_t = End}} = S) ->
     Frames = [T || T <- Ts, rw_sync:is_frame(T, Cal)],
     Shown = [T || T <- Frames, S#s.frames orelse S#s.ring_size > 1 orelse T =:= End],
     Check = case erlang:monotonic_time(millisecond) >= S#s.checkpoint_due of
                 true -> lists:sublist(lists:reverse([T || T <- Frames, T < End]), 1);
                 false -> []
             end,
-    Regroup = [X || X <- Ts, regroup_point(X, S),
-                    not rw_regroup:quiet(element(1, met_since(X - rw_sync:period(Cal), S)), Groups)],
+    Regroup = [X || X <- Ts, regroup_point(X, S), not quiet_at(X, S)],
     lists:usort(Shown ++ Check ++ Regroup).
 
 %% A site's answer: its records of the sync points it confirmed, the pairs
@@ -391,19 +396,29 @@ confirmed(Site, Confirmed, Rest, Records, Met, #s{sim = Sim, multi = M} = S) ->
     case lists:delete(Site, Pending) of
         [] ->
             Passable = lists:sublist(Ts, lists:min([length(C) || C <- [Confirmed | Answers]])),
-            Stale = Ts -- Passable,
-            Have = maps:without(Stale, M#m.have),
-            S1 = pass_confirmed(Passable, S#s{multi = M#m{met = Met1, reported = Reported, confirming = none,
-                                                           have = Have}}),
-            confirm(publish(S#s.gvt, S1));
+            #s{gvt = G, multi = M1} = S1 = pass_confirmed(Passable, S#s{multi = M#m{met = Met1, reported = Reported,
+                                                                                    confirming = none}}),
+            %% the records of the sync points not passed are asked for again
+            Later = [T || T <- Ts, T > G],
+            _ = [rw_commits:delete_at(T, Sim#sim.records) || T <- Later, is_map_key(T, M1#m.have)],
+            confirm(publish(S#s.gvt, S1#s{multi = M1#m{have = maps:without(Later, M1#m.have)}}));
         Left ->
             S#s{multi = M#m{met = Met1, reported = Reported, confirming = {Ref, Ts, Left, [Confirmed | Answers]}}}
     end.
 
+%% In order, up to a regroup point's plan: a batch may go past a regroup
+%% point that was quiet when it was asked for and has pairs that met since,
+%% and the entities told to stop at the next one must hear it before GVT
+%% passes it (the sync points left are confirmed again later).
 pass_confirmed([], S) -> S;
-pass_confirmed([T | Ts], S) ->
-    S1 = regroup(T, S),
-    pass_confirmed(Ts, S1#s{gvt = T, passed = [T | S1#s.passed]}).
+pass_confirmed([T | Ts], #s{unready = U} = S) ->
+    case map_size(U) > 0 andalso T >= lists:min(maps:keys(U)) of
+        true ->
+            S;
+        false ->
+            S1 = regroup(T, S),
+            pass_confirmed(Ts, S1#s{gvt = T, passed = [T | S1#s.passed]})
+    end.
 
 %% GVT has passed the sync points confirmed: every site hears it, with the
 %% regroup moves for its entities first; then the frames.

@@ -26,8 +26,8 @@
 -spec new([rw_vec:vec()], pos_integer(), pos_integer(), float()) -> placement().
 new(Positions, Sites, Per, Cell) ->
     Axis = widest(Positions),
-    Blocks = lists:sort([cell(element(Axis, P), Cell) || P <- Positions]),
-    #place{sites = Sites, axis = Axis, cuts = list_to_tuple(cuts(Blocks, Sites)), per = Per, cell = Cell}.
+    Cells = lists:sort([cell(element(Axis, P), Cell) || P <- Positions]),
+    #place{sites = Sites, axis = Axis, cuts = list_to_tuple(cuts(Cells, Sites)), per = Per, cell = Cell}.
 
 %% The site of a position.
 -spec site_of(rw_vec:vec(), placement()) -> non_neg_integer().
@@ -77,17 +77,21 @@ widest([{X, Y, Z} | Rest]) ->
     {_, Axis} = lists:max([{S, -I} || {S, I} <- lists:zip(Spread, [1, 2, 3])]),
     -Axis.
 
-%% K-1 cuts through sorted cell coordinates, each at the cell of the
-%% body that begins the next equal share (so a cell is never cut), and
-%% each above the one before: with few distinct blocks, later sites may
-%% hold no body at all.
-cuts(_Blocks, 1) -> [];
+%% K-1 cuts through sorted cell coordinates, each halfway between the cells
+%% of the last body of one equal share and the first of the next (a body's
+%% writes reach the cells next to its own: a cut in the gap between two
+%% groups of bodies keeps each group's writes on its node), never cutting a
+%% cell, and each above the one before: with few distinct cells, later
+%% sites may hold no body at all.
+cuts(_Cells, 1) -> [];
 cuts([], K) -> lists:seq(1, K - 1);
-cuts(Blocks, K) ->
-    N = length(Blocks),
-    Sorted = list_to_tuple(Blocks),
+cuts(Cells, K) ->
+    N = length(Cells),
+    Sorted = list_to_tuple(Cells),
     {Cuts, _} = lists:mapfoldl(fun(I, Prev) ->
-                                       C = max(Prev + 1, element(min(N, 1 + (I * N) div K), Sorted)),
+                                       Next = min(N, 1 + (I * N) div K),
+                                       Last = element(max(1, Next - 1), Sorted),
+                                       C = max(Prev + 1, (Last + element(Next, Sorted) + 1) bsr 1),
                                        {C, C}
                                end, element(1, Sorted), lists:seq(1, K - 1)),
     Cuts.

@@ -4,7 +4,7 @@
 %% argument.
 -module(rw_sim).
 -include("rigidwarp.hrl").
--export([new/5, for_site/4, for_bodies/1, lvt_slot/1]).
+-export([new/5, portable/1, for_site/4, for_bodies/1, lvt_slot/1]).
 -export_type([options/0, tables/0]).
 
 %% The simulation's working tables (rw_sim_tables) and the run's records
@@ -47,6 +47,13 @@ lvts(Spheres, Start) ->
     Lvts = atomics:new(lvt_slot(lists:max([0 | [I || #sphere{idx = I} <- Spheres]])), [{signed, false}]),
     _ = [atomics:put(Lvts, lvt_slot(I), Start) || Start > 0, #sphere{idx = I} <- Spheres],
     Lvts.
+
+%% The context without what belongs to this node (ETS tables, atomics,
+%% counters): what is sent to the sites on other nodes.
+-spec portable(#sim{}) -> #sim{}.
+portable(Sim) ->
+    Sim#sim{records = undefined, counts = undefined, ring = undefined, owners = undefined, procs = undefined,
+            met = undefined, stats = undefined, lvts = undefined, gvt_now = undefined}.
 
 %% The context of one node's share of a simulation over several nodes: its
 %% own bodies (Idxs), tables, counters and GVT process. Only the LVTs of the

@@ -96,7 +96,7 @@ nodes(Sup, Nodes, #scene{model = M, substep = Dt, spheres = Spheres, initial = I
     {ok, Watchdog} = child(Sup, rw_sim_parts:worker(watchdog, rw_watchdog, [Sim, maps:get(run, Opts, undefined),
                                                                maps:get(watchdog_ms, Opts, 10000)])),
     Shares = rw_place:split([{{Sphere, St}, P} || {Sphere, #st{p = P} = St} <- lists:zip(Spheres, Initial)], Place),
-    Started = [{I, rw_site:bodies(Pid, Sim, Share, Gvt)}
+    Started = [{I, rw_site:bodies(Pid, rw_sim:portable(Sim), Share, Gvt)}
                || {{I, _, Pid, _}, Share} <- lists:zip(Sites, Shares)],
     Bodies = lists:append([B || {_, {_, B}} <- Started]),
     true = ets:insert(Sim#sim.procs, [{Idx, Pid} || {Idx, _, Pid} <- Bodies]),

@@ -6,7 +6,11 @@ columns_split_along_the_widest_axis_test() ->
     Ps = [{X, Y, 0.0} || X <- [-10.0, -8.5, 0.0, 1.5], Y <- [0.0, 1.5, 3.0]],
     Place = rw_place:new(Ps, 2, 4, 2.5),
     ?assertEqual([0, 0, 1, 1], [rw_place:site_of({X, 0.0, 0.0}, Place) || X <- [-10.0, -8.5, 0.0, 1.5]]),
-    ?assertEqual(8, rw_place:buckets(Place)).
+    ?assertEqual(8, rw_place:buckets(Place)),
+    %% the cut lies halfway through the gap: the cells a body's writes reach
+    %% on either side of it are its own node's
+    [?assertEqual(rw_place:site_of({X, 0.0, 0.0}, Place), rw_place:site_of({X + D, 0.0, 0.0}, Place))
+     || X <- [-10.0, -8.5, 0.0, 1.5], D <- [-2.5, 2.5]].
 
 %% Equal shares, never cutting a cell, every site's buckets its own.
 shares_are_even_and_buckets_stay_home_test() ->
