@@ -8,7 +8,7 @@
 -include_lib("common_test/include/ct.hrl").
 -export([all/0, suite/0, init_per_suite/1, end_per_suite/1]).
 -export([fig7_speedup/1, fig8_breakdown/1, fig9_density/1, fig10_stride/1, features/1, contact_vs_isolated/1,
-         contact_groups/1]).
+         contact_groups/1, nodes_vs_schedulers/1]).
 
 suite() -> [{timetrap, {hours, 3}}].
 

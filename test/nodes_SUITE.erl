@@ -15,13 +15,13 @@
 -export([all/0, suite/0, init_per_suite/1, end_per_suite/1]).
 -export([every_scenario_equal/1, contact_scenes_equal/1, random_scenes_equal/1, piles_regroup_across_batches/1, own_peers_equal_and_stopped/1, node_killed_mid_run/1,
          node_stopped_mid_run/1, bodies_move_to_the_node_of_their_space/1, peers_stopped_however_the_run_ends/1, cross_node_traffic_is_counted/1,
-         bad_nodes_are_refused/1]).
+         bad_nodes_are_refused/1, watchdog_names_stuck_body_elsewhere/1]).
 
 suite() -> [{timetrap, {minutes, 10}}].
 
 all() -> [every_scenario_equal, contact_scenes_equal, random_scenes_equal, piles_regroup_across_batches, own_peers_equal_and_stopped, node_killed_mid_run,
           node_stopped_mid_run, bodies_move_to_the_node_of_their_space, peers_stopped_however_the_run_ends, cross_node_traffic_is_counted,
-          bad_nodes_are_refused].
+          bad_nodes_are_refused, watchdog_names_stuck_body_elsewhere].
 
 %% Piles, cylinders, a dense gas and obstacles, over parts with contacts
 %% all along.
@@ -266,6 +266,25 @@ cross_node_traffic_is_counted(Config) ->
               ?assertNot(maps:is_key(cross_node_messages, One)),
               ?assert(maps:get(cross_node_messages, Two) > 0),
               ?assert(maps:get(cross_node_bytes, Two) > maps:get(cross_node_messages, Two)),
+              ok
+      end).
+
+%% A body stuck on another node is named by the watchdog, described on its
+%% own node.
+watchdog_names_stuck_body_elsewhere(_Config) ->
+    File = rw_test_lib:scenario("head_on_elastic.json"),
+    {ok, Scene} = rigidwarp:load(File, #{until => 1000000}),
+    with_peers(
+      fun([A, _]) ->
+              {ok, {rw_sim, Run, _} = H} = rw_timewarp:start(Scene, #{owner => self(), watchdog_ms => 300,
+                                                                      max_restarts => 0, nodes => [A]}),
+              [Body] = [P || {P, {body, <<"b">>}} <- rw_run:processes(Run)],
+              ?assertEqual(A, node(Body)),
+              ok = sys:suspend(Body),
+              Report = receive {rw_crashed, Run, stalled, {gvt_stuck, _G, R}} -> R after 5000 -> ct:fail(no_watchdog) end,
+              rw_timewarp:stop(H),
+              [_Header, First | _] = string:split(Report, "\n", all),
+              ?assertMatch({match, _}, re:run(First, "^body b \\(idx 1\\): step at LVT [0-9]+ .*[1-9][0-9]* unread messages")),
               ok
       end).
 

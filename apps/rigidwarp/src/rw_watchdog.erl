@@ -59,13 +59,25 @@ handle_info(_Msg, W) ->
 %% Who waits on whom: each body's phase, LVT, what it awaits and how many
 %% messages it has not read yet, the bodies holding GVT back first.
 diagnose(#sim{procs = Procs}) ->
-    Lines = [try sys:get_state(B, 500) of
-                 {_Phase, D} -> rw_body:describe(D, unread(B))
-             catch
-                 exit:_ -> {-1, io_lib:format("~p: not answering (blocked in a bucket call?); ~ts", [B, queue(B)])}
-             end || {_, B} <- lists:sort(ets:tab2list(Procs))],
+    Lines = [describe(B) || {_, B} <- lists:sort(ets:tab2list(Procs))],
     lists:flatten(["bodies by LVT, lowest (holding GVT back) first:\n"
                    | [[L, $\n] || {_, L} <- lists:keysort(1, Lines)]]).
+
+%% A body described on its own node: its state holds that node's tables
+%% and atomics, which are not to leave it.
+describe(B) when node(B) =:= node() -> describe_here(B);
+describe(B) ->
+    try erpc:call(node(B), fun() -> describe_here(B) end, 2000)
+    catch
+        _:Reason -> {-1, io_lib:format("~p: cannot be asked (~0P)", [B, Reason, 6])}
+    end.
+
+describe_here(B) ->
+    try sys:get_state(B, 500) of
+        {_Phase, D} -> rw_body:describe(D, unread(B))
+    catch
+        exit:_ -> {-1, io_lib:format("~p: not answering (blocked in a bucket call?); ~ts", [B, queue(B)])}
+    end.
 
 unread(Pid) ->
     case erlang:process_info(Pid, message_queue_len) of
