@@ -266,6 +266,18 @@ cross_node_traffic_is_counted(Config) ->
               ?assertNot(maps:is_key(cross_node_messages, One)),
               ?assert(maps:get(cross_node_messages, Two) > 0),
               ?assert(maps:get(cross_node_bytes, Two) > maps:get(cross_node_messages, Two)),
+              %% the lead over GVT (the progress line's "GVT lag") is read
+              %% from the bodies' own nodes: Parallel's bodies run up to a
+              %% stride ahead
+              {ok, Parallel} = rigidwarp:load(rw_test_lib:scenario("parallel_200.json"), #{}),
+              {ok, H} = rw_timewarp:start(Parallel, #{owner => self(), nodes => [A]}),
+              Leads = [begin
+                           timer:sleep(20),
+                           #{gvt := G, max_lvt := Max} = rw_timewarp:stats(H),
+                           Max - G
+                       end || _ <- lists:seq(1, 20)],
+              rw_timewarp:stop(H),
+              ?assert(lists:max(Leads) > 0),
               ok
       end).
 

@@ -336,15 +336,20 @@ fault(Who, Reason, #r{opts = Opts} = R0) ->
 
 %% The counters of the sites of the tree (on several nodes): those of the
 %% sites on other nodes, and what every node has sent to the others.
-site_counts(#r{sites = Sites}) ->
-    lists:foldl(fun(Site, Acc) ->
+site_counts(R) -> element(1, site_stats(R)).
+
+%% ... and the highest LVT of their bodies.
+site_stats(#r{sites = Sites}) ->
+    lists:foldl(fun(Site, {Acc, Lead}) ->
                         try rw_site:stats(Site) of
-                            Counts when node(Site) =:= node() -> add_counts(Acc, maps:with([dist_messages, dist_bytes], Counts));
-                            Counts -> add_counts(Acc, Counts)
+                            {Counts, L} when node(Site) =:= node() ->
+                                {add_counts(Acc, maps:with([dist_messages, dist_bytes], Counts)), max(Lead, L)};
+                            {Counts, L} ->
+                                {add_counts(Acc, Counts), max(Lead, L)}
                         catch
-                            exit:_ -> Acc
+                            exit:_ -> {Acc, Lead}
                         end
-                end, #{}, Sites).
+                end, {#{}, 0}, Sites).
 
 take(Key, Map) ->
     case maps:take(Key, Map) of
@@ -409,7 +414,8 @@ tick(Ms, #scene{tick_us = U}) -> round(Ms * 1000 / U).
 stats_of(#r{scene = #scene{spheres = Spheres, substep = Dt, duration = End}, stats = Ref,
             sim = Sim, started = T0, start = Start} = R) ->
     Profile = case Sim of #sim{profile = P} -> P; undefined -> false end,
-    Raw = add_counts(add_counts(rw_stats:read(Ref, Profile), R#r.remote), site_counts(R)),
+    {SiteCounts, SiteLead} = site_stats(R),
+    Raw = add_counts(add_counts(rw_stats:read(Ref, Profile), R#r.remote), SiteCounts),
     G = gvt_tick(R),
     N = length(Spheres),
     Committed = N * (max(G, Start) - Start) div Dt,
@@ -417,9 +423,12 @@ stats_of(#r{scene = #scene{spheres = Spheres, substep = Dt, duration = End}, sta
     Wall = max(1, case R#r.ended of none -> erlang:monotonic_time(millisecond); E -> E end - T0),
     Lead = case {R#r.sup, Sim} of
                {none, _} -> G;
-               {_, #sim{lvts = Lvts}} ->
+               {_, #sim{lvts = Lvts, placement = Place}} when is_integer(Place) ->
                    #{size := Size} = atomics:info(Lvts),
-                   lists:max([atomics:get(Lvts, I) || I <- lists:seq(1, Size, 8)])
+                   lists:max([atomics:get(Lvts, I) || I <- lists:seq(1, Size, 8)]);
+               {_, #sim{}} ->
+                   %% over several nodes, each site knows its own bodies'
+                   SiteLead
            end,
     GvtMs = ms(G, R),
     SimS = max(1, GvtMs - ms(Start, R)) / 1000,

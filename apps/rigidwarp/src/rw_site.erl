@@ -48,9 +48,10 @@ start_link(Node, Opts) ->
 -spec bodies(pid(), #sim{}, [{#sphere{}, #st{}}], pid()) -> {pid(), [{non_neg_integer(), binary(), pid()}]}.
 bodies(Site, Sim, Bodies, RunGvt) -> call(Site, {bodies, Sim, Bodies, RunGvt}).
 
-%% The site's counters (rw_stats names), and what this node has sent to
-%% other nodes since the site started: dist_messages, dist_bytes.
--spec stats(pid()) -> #{atom() => integer()}.
+%% The site's counters (rw_stats names) and what this node has sent to
+%% other nodes since the site started (dist_messages, dist_bytes); and the
+%% highest LVT of its bodies (0 before they start).
+-spec stats(pid()) -> {#{atom() => integer()}, non_neg_integer()}.
 stats(Site) -> call(Site, stats).
 
 call(Site, Req) ->
@@ -73,7 +74,8 @@ call(Site, Req) ->
     buckets :: [pid()],
     stats :: rw_stats:counters(),
     profile :: boolean(),
-    sent :: {non_neg_integer(), non_neg_integer()}
+    sent :: {non_neg_integer(), non_neg_integer()},
+    lvts = none :: none | {atomics:atomics_ref(), [non_neg_integer()]}   % its bodies' LVTs, once they exist
 }).
 
 -spec init(pid(), options()) -> no_return().
@@ -112,10 +114,14 @@ handle({bodies, Sim0, Bodies, RunGvt}, #site{sup = Sup, tables = Tables, buckets
     Sim = Sim1#sim{gvt = Gvt},
     {ok, BodySup} = supervisor:start_child(Sup, rw_sim_parts:body_pool()),
     Started = rw_sim_parts:start_bodies(BodySup, rw_sim:for_bodies(Sim), Bodies),
-    {{Gvt, Started}, S};
+    {{Gvt, Started}, S#site{lvts = {Sim#sim.lvts, [Idx || {#sphere{idx = Idx}, _} <- Bodies]}}};
 handle(stats, #site{stats = Stats, profile = Profile, sent = {N0, B0}} = S) ->
     {N, B} = dist_sent(),
-    {(rw_stats:read(Stats, Profile))#{dist_messages => N - N0, dist_bytes => B - B0}, S}.
+    Lead = case S#site.lvts of
+               none -> 0;
+               {Lvts, Idxs} -> lists:max([0 | [atomics:get(Lvts, rw_sim:lvt_slot(I)) || I <- Idxs]])
+           end,
+    {{(rw_stats:read(Stats, Profile))#{dist_messages => N - N0, dist_bytes => B - B0}, Lead}, S}.
 
 stop(Sup) ->
     MRef = erlang:monitor(process, Sup),
