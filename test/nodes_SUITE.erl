@@ -132,9 +132,10 @@ random_scenes_equal(_Config) ->
 %% Piles with contact groups planned from the pairs that met: a batch of
 %% sync points that GVT confirms may pass a regroup point that was quiet
 %% when it was asked for and met pairs since; GVT must stop before the
-%% next regroup point once entities are told to stop there (it once went
-%% past it, and an entity rolled back to a sync point GVT had passed: about
-%% 3 pile runs in 200 crashed so).
+%% next regroup point once entities are told to stop there. A GVT that
+%% passed it would have an entity roll back to a sync point GVT had passed
+%% and crash withdrawing its forgotten commit (3 pile runs in 200 did, with
+%% no restart allowed; this property catches that within 60).
 piles_regroup_across_batches(_Config) ->
     with_peers(
       fun([A, _]) ->
