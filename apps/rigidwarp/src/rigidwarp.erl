@@ -72,7 +72,7 @@
 -export_type([sim/0]).
 
 %% The options the Time Warp engine itself takes.
--define(TIMEWARP_KEYS, [buckets, schedulers, nodes, watchdog_ms, groups, group_max, max_restarts, restart_period_ms,
+-define(TIMEWARP_KEYS, [buckets, schedulers, nodes, migrate, watchdog_ms, groups, group_max, max_restarts, restart_period_ms,
                         checkpoint_ms, ring_size]).
 %% What run/2 takes and start/2 cannot: start/2 hands out frames through
 %% the handle (frames/1, subscribe/1), not to a file or a callback.
@@ -94,6 +94,8 @@ options() ->
      {schedulers, count, "schedulers online while the run lasts (lent by the VM; default: all)"},
      {nodes, nodes, "run over several Erlang nodes: a count (peer nodes started here, each with schedulers "
       "schedulers) or the names of running nodes to use besides this one (default 1)"},
+     {migrate, boolean, "over several nodes, place the bodies anew at a checkpoint that finds a tenth of them in "
+      "other nodes' space (default true)"},
      {groups, boolean, "step bodies in persistent contact as one entity (default true)"},
      {group_max, count, "the most bodies in one contact group (default 64)"},
      {watchdog_ms, count, "how long GVT may stand still before the run restarts (default 10000)"},

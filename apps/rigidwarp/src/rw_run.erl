@@ -30,6 +30,7 @@
 %% checkpoints; from, the checkpoint to start from; subscribers from the
 %% start.
 -type options() :: #{buckets => pos_integer(), schedulers => pos_integer(), nodes => rw_nodes:spec() | rw_nodes:nodes(),
+                     migrate => boolean(),
                      max_restarts => non_neg_integer(), restart_period_ms => pos_integer(),
                      checkpoint_ms => non_neg_integer(), from => rw_reference:checkpoint(),
                      subscribers => [subscription()], atom() => term()}.
@@ -366,6 +367,7 @@ add_counts(A, B) -> maps:fold(fun(K, V, Acc) -> maps:update_with(K, fun(V0) -> V
 %% cost of the work done since the checkpoint.
 -define(MISPLACED_SHARE, 10).
 
+maybe_migrate(#r{opts = #{migrate := false}} = R) -> R;
 maybe_migrate(#r{sim = #sim{placement = Place}, sup = Sup, status = running, placed_on = Nodes,
                  checkpoint = {checkpoint, _, _, States}, scene = #scene{spheres = Spheres}} = R)
   when not is_integer(Place), Sup =/= none ->

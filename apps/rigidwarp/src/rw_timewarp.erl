@@ -25,7 +25,7 @@
                      on_checkpoint => fun((rw_reference:checkpoint()) -> any()),
                      on_progress => fun((map()) -> any())}.
 
--define(RUN_KEYS, [buckets, schedulers, nodes, groups, group_max, regroup_every, grouping, watchdog_ms, ring_size, profile,
+-define(RUN_KEYS, [buckets, schedulers, nodes, migrate, groups, group_max, regroup_every, grouping, watchdog_ms, ring_size, profile,
                    delay, max_restarts, restart_period_ms, checkpoint_ms, from]).
 
 %% Start a simulation; it runs on its own until the scene's end.
