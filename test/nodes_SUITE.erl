@@ -31,21 +31,10 @@ all() -> [every_scenario_equal, contact_scenes_equal, random_scenes_equal, piles
 init_per_suite(Config) ->
     {ok, _} = application:ensure_all_started(rigidwarp),
     logger:set_application_level(rigidwarp, error),
-    %% the first run over several nodes makes this node distributed
-    {ok, Started} = rw_nodes:start(1, undefined),
-    ok = rw_nodes:stop(Started),
-    Scenes = [begin
-                  File = case Where of
-                             scenario -> rw_test_lib:scenario(Name ++ ".json");
-                             test -> rw_test_lib:test_scene(Name ++ ".json")
-                         end,
-                  {ok, Scene} = rigidwarp:load(File, #{until => Until}),
-                  {Name, {Scene, reference_frames(Scene)}}
-              end || {Name, Where, Until} <- ?SCENES],
+    Scenes = rw_test_lib:scenes_with_reference(?SCENES),
     [{scenes, Scenes} | Config].
 
-end_per_suite(Config) ->
-    _ = [catch peer:stop(P) || {_, P} <- proplists:get_value(peers, Config, [])],
+end_per_suite(_Config) ->
     logger:unset_application_level(rigidwarp),
     ok.
 
@@ -54,11 +43,6 @@ with_peers(Fun) ->
     {ok, #{nodes := [_ | Nodes]} = Started} = rw_nodes:start(3, 1),
     try Fun(Nodes) after rw_nodes:stop(Started) end.
 
-reference_frames(Scene) ->
-    Self = self(),
-    {ok, _} = rw_reference:run(Scene, #{on_frame => fun(F) -> Self ! {reference, F} end}),
-    drain(reference).
-
 drain(Tag) -> receive {Tag, F} -> [F | drain(Tag)] after 0 -> [] end.
 
 frames(Scene, Opts) ->
@@ -66,6 +50,21 @@ frames(Scene, Opts) ->
     Ref = make_ref(),
     Result = rw_timewarp:run(Scene, Opts#{on_frame => fun(F) -> Self ! {Ref, F} end}),
     {Result, drain(Ref)}.
+
+%% The scene of SceneMap at Stride substeps of stride, run with Opts and no
+%% restart allowed (no fault is injected: any restart is a bug), has the
+%% reference's frames bit for bit; true for a packing that cannot be placed.
+equal_to_reference(SceneMap, Stride, Opts) ->
+    case rw_scene:from_map(SceneMap#{<<"stride_ms">> => Stride * maps:get(<<"substep_ms">>, SceneMap)}, #{}) of
+        {error, _} ->
+            true;
+        {ok, Scene} ->
+            Reference = rw_test_lib:reference_frames(Scene),
+            {Result, Frames} = frames(Scene, Opts#{max_restarts => 0, watchdog_ms => 5000}),
+            ?WHENFAIL(ct:pal("scene ~p~nstride ~p, ~p: ~P~nfirst difference ~p",
+                             [SceneMap, Stride, Opts, Result, 8, rw_test_lib:first_difference(Reference, Frames)]),
+                      element(1, Result) =:= ok andalso rw_test_lib:bitwise_equal(Reference, Frames))
+    end.
 
 %%% Cases
 
@@ -77,7 +76,7 @@ every_scenario_equal(_Config) ->
               Files = engine_SUITE:scenario_files(),
               [begin
                    {ok, Scene} = rigidwarp:load(F, #{until => engine_SUITE:until(F)}),
-                   Reference = reference_frames(Scene),
+                   Reference = rw_test_lib:reference_frames(Scene),
                    [begin
                         {Result, Frames} = frames(Scene, #{nodes => Nodes}),
                         ?assertMatch({ok, #{restarts := 0}}, Result),
@@ -109,22 +108,8 @@ random_scenes_equal(_Config) ->
               Prop = ?FORALL({SceneMap, Stride, Buckets, Nodes, Groups},
                              {engine_SUITE:scene_map(), engine_SUITE:stride(), oneof([2, 4, 16]),
                               oneof([[A], [A, B]]), engine_SUITE:group_options()},
-                             case rw_scene:from_map(SceneMap#{<<"stride_ms">> => Stride * maps:get(<<"substep_ms">>, SceneMap)},
-                                                    #{}) of
-                                 {error, _} ->
-                                     true;
-                                 {ok, Scene} ->
-                                     Reference = reference_frames(Scene),
-                                     %% no fault is injected: any restart is a bug
-                                     {Result, Frames} = frames(Scene, Groups#{buckets => Buckets, nodes => Nodes,
-                                                                              max_restarts => 0, watchdog_ms => 5000}),
-                                     ?WHENFAIL(ct:pal("scene ~p~nstride ~p, ~p buckets, nodes ~p, ~p: ~P~nfirst difference ~p",
-                                                      [SceneMap, Stride, Buckets, Nodes, Groups, Result, 8,
-                                                       rw_test_lib:first_difference(Reference, Frames)]),
-                                               collect(length(Nodes) + 1,
-                                                       element(1, Result) =:= ok andalso
-                                                       rw_test_lib:bitwise_equal(Reference, Frames)))
-                             end),
+                             collect(length(Nodes) + 1,
+                                     equal_to_reference(SceneMap, Stride, Groups#{buckets => Buckets, nodes => Nodes}))),
               true = proper:quickcheck(Prop, [{numtests, 40}, {to_file, user}, long_result]),
               ok
       end).
@@ -140,16 +125,7 @@ piles_regroup_across_batches(_Config) ->
     with_peers(
       fun([A, _]) ->
               Prop = ?FORALL({SceneMap, Stride}, {engine_SUITE:pile(), engine_SUITE:stride()},
-                             case rw_scene:from_map(SceneMap#{<<"stride_ms">> => Stride * maps:get(<<"substep_ms">>, SceneMap)},
-                                                    #{}) of
-                                 {error, _} ->
-                                     true;
-                                 {ok, Scene} ->
-                                     Reference = reference_frames(Scene),
-                                     {Result, Frames} = frames(Scene, #{nodes => [A], max_restarts => 0, watchdog_ms => 5000}),
-                                     ?WHENFAIL(ct:pal("scene ~p, stride ~p: ~P", [SceneMap, Stride, Result, 8]),
-                                               element(1, Result) =:= ok andalso rw_test_lib:bitwise_equal(Reference, Frames))
-                             end),
+                             equal_to_reference(SceneMap, Stride, #{nodes => [A]})),
               true = proper:quickcheck(Prop, [{numtests, 60}, {to_file, user}, long_result]),
               ok
       end).
@@ -228,7 +204,7 @@ bodies_move_to_the_node_of_their_space(_Config) ->
             <<"generators">> => [Column(<<"a">>, -10.0, 12.0),
                                  maps:update_with(<<"origin">>, fun([X, Y, _]) -> [X, Y, 3.0] end, Column(<<"b">>, 7.0, -12.0))]},
     {ok, Scene} = rw_scene:from_map(Map, #{}),
-    Reference = reference_frames(Scene),
+    Reference = rw_test_lib:reference_frames(Scene),
     with_peers(
       fun([A, _]) ->
               {Result, Frames} = frames(Scene, #{nodes => [A], checkpoint_ms => 20}),

@@ -26,24 +26,12 @@ all() -> [random_kills_change_no_frame, two_kills_at_once, past_the_budget_crash
 init_per_suite(Config) ->
     {ok, _} = application:ensure_all_started(rigidwarp),
     logger:set_application_level(rigidwarp, error),
-    Scenes = [begin
-                  File = case Where of
-                             scenario -> rw_test_lib:scenario(Name ++ ".json");
-                             test -> rw_test_lib:test_scene(Name ++ ".json")
-                         end,
-                  {ok, Scene} = rigidwarp:load(File, #{until => Until}),
-                  {Name, {Scene, reference_frames(Scene)}}
-              end || {Name, Where, Until} <- ?SCENES],
+    Scenes = rw_test_lib:scenes_with_reference(?SCENES),
     [{scenes, maps:from_list(Scenes)} | Config].
 
 end_per_suite(_Config) ->
     logger:unset_application_level(rigidwarp),
     ok.
-
-reference_frames(Scene) ->
-    Self = self(),
-    {ok, _} = rw_reference:run(Scene, #{on_frame => fun(F) -> Self ! {reference, F} end}),
-    drain(reference).
 
 drain(Tag) -> receive {Tag, F} -> [F | drain(Tag)] after 0 -> [] end.
 

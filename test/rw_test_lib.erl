@@ -1,8 +1,8 @@
 %% Helpers shared by the common_test suites in test/ (and by the apps'
 %% EUnit tests: rebar3 compiles test/ for both).
 -module(rw_test_lib).
--export([root/0, scenario/1, test_scene/1, escript/0, run_escript/1, bitwise_equal/2, assert_bitwise/2,
-         assert_bitwise/3, first_difference/2]).
+-export([root/0, scenario/1, test_scene/1, scenes_with_reference/1, reference_frames/1, escript/0, run_escript/1,
+         bitwise_equal/2, assert_bitwise/2, assert_bitwise/3, first_difference/2]).
 
 %% Bit for bit the same terms: =:= takes -0.0 for 0.0 on OTP 25; the
 %% external format keeps each float's IEEE bits (deterministic: maps equal
@@ -81,6 +81,29 @@ scenario(Name) -> filename:join([root(), "scenarios", Name]).
 %% compared by engine_SUITE:scenarios_equal.
 -spec test_scene(string()) -> file:filename().
 test_scene(Name) -> filename:join([root(), "test", "scenes", Name]).
+
+%% Each {Name, scenario | test, UntilMs}: the scene (scenarios/ or
+%% test/scenes/) loaded up to UntilMs, and its reference frames.
+-spec scenes_with_reference([{string(), scenario | test, pos_integer()}]) -> [{string(), {tuple(), [tuple()]}}].
+scenes_with_reference(Scenes) ->
+    [begin
+         File = case Where of
+                    scenario -> scenario(Name ++ ".json");
+                    test -> test_scene(Name ++ ".json")
+                end,
+         {ok, Scene} = rigidwarp:load(File, #{until => Until}),
+         {Name, {Scene, reference_frames(Scene)}}
+     end || {Name, Where, Until} <- Scenes].
+
+%% The frames of the sequential reference engine, in order.
+-spec reference_frames(tuple()) -> [tuple()].
+reference_frames(Scene) ->
+    Ref = make_ref(),
+    Self = self(),
+    {ok, _} = rw_reference:run(Scene, #{on_frame => fun(F) -> Self ! {Ref, F} end}),
+    drain(Ref).
+
+drain(Ref) -> receive {Ref, F} -> [F | drain(Ref)] after 0 -> [] end.
 
 -spec escript() -> file:filename().
 escript() -> filename:join([root(), "_build", "default", "bin", "rigidwarp"]).

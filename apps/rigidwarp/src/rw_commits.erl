@@ -73,7 +73,7 @@ select_at(T, Records) -> ets:select(Records, [{{{T, '_'}, '$1', '_'}, [], ['$1']
 -spec states_at(non_neg_integer(), ets:tid()) -> [#st{}].
 states_at(T, Records) ->
     [#st{p = P, v = V, q = Q, w = W}
-     || {_, {_, P, _, Q, _}, {V, W}} <- ets:select(Records, [{{{T, '_'}, '_', '_'}, [], ['$_']}])].
+     || {_, {_, P, _, Q, _}, {V, W}} <- records_at(T, Records)].
 
 %% GVT has passed G: forget the counts and records of every sync point up
 %% to G.

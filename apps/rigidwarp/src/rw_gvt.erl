@@ -57,10 +57,8 @@
     frames = false :: boolean(),              % whole frames to the run, not their times
     gvt = -1 :: integer(),                   % last sync point passed
     complete = #{} :: #{non_neg_integer() => true},
-    %% the entities to wake when GVT reaches each time, ascending (a few
-    %% distinct times, each with up to every body: a list per time, where a
-    %% set of {At, Pid} would hold an element per body)
-    waiting = [] :: [{integer(), [pid()]}],
+    %% the entities to wake when GVT reaches each time
+    waiting = rw_wakeups:new() :: rw_wakeups:wakeups(),
     ring_size :: pos_integer(),
     checkpoint_ms :: non_neg_integer(),
     checkpoint_due :: integer(),              % monotonic ms
@@ -159,7 +157,7 @@ handle_info({wake_at, Pid, At}, #s{gvt = G} = S) when At =< G ->
     Pid ! {gvt, G},
     {noreply, S};
 handle_info({wake_at, Pid, At}, #s{waiting = W} = S) ->
-    {noreply, S#s{waiting = add_waiting(At, Pid, W)}};
+    {noreply, S#s{waiting = rw_wakeups:add(At, Pid, W)}};
 handle_info(Msg, S) ->
     logger:warning("rw_gvt: unexpected message ~p", [Msg]),
     {noreply, S}.
@@ -188,7 +186,7 @@ advance(#s{gvt = G0} = S) ->
         true ->
             ok = atomics:put(Sim#sim.gvt_now, 1, G),
             [rw_bucket:gvt(B, G) || B <- tuple_to_list(Sim#sim.buckets)],
-            S2 = lists:foldl(fun finish/2, S1#s{waiting = wake(G, S1#s.waiting), passed = []},
+            S2 = lists:foldl(fun finish/2, S1#s{waiting = rw_wakeups:wake(G, S1#s.waiting), passed = []},
                              lists:reverse(Passed)),
             ok = case G of
                      End -> notify(S#s.run, {rw_done, self(), ms(End, S)});
@@ -446,14 +444,6 @@ with_pids(S) -> S.
 committed(X, #s{sim = #sim{records = Records}, radii = Radii, idxs = Idxs}) ->
     [{I, maps:get(I, Radii), Pos, V} || {I, {_, Pos, V, _, _}} <- lists:zip(Idxs, rw_commits:select_at(X, Records))].
 
-add_waiting(At, Pid, [{A, _} = First | Rest]) when A < At -> [First | add_waiting(At, Pid, Rest)];
-add_waiting(At, Pid, [{At, Pids} | Rest]) -> [{At, [Pid | Pids]} | Rest];
-add_waiting(At, Pid, Later) -> [{At, [Pid]} | Later].
-
-wake(G, [{At, Pids} | Rest]) when At =< G ->
-    _ = [Pid ! {gvt, G} || Pid <- Pids],
-    wake(G, Rest);
-wake(_G, Waiting) -> Waiting.
 
 notify(undefined, _) -> ok;
 notify(Pid, Msg) -> Pid ! Msg, ok.

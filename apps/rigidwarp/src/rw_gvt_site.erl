@@ -40,7 +40,7 @@
     sim :: #sim{},
     run_gvt :: pid(),
     buckets :: [pid()],                      % this node's
-    waiting = [] :: [{integer(), [pid()]}]    % as in rw_gvt
+    waiting = rw_wakeups:new() :: rw_wakeups:wakeups()
 }).
 
 -spec start_link(#sim{}, pid(), [pid()]) -> {ok, pid()}.
@@ -71,13 +71,13 @@ handle_info({gvt, G, Moves}, #s{sim = Sim, waiting = W} = S) ->
     _ = [Pid ! Msg || {Pid, Msg} <- Moves],
     ok = atomics:put(Sim#sim.gvt_now, 1, G),
     _ = [rw_bucket:gvt(B, G) || B <- S#s.buckets],
-    S1 = S#s{waiting = wake(G, W)},
+    S1 = S#s{waiting = rw_wakeups:wake(G, W)},
     ok = rw_commits:forget_through(Sim, G),
     {noreply, S1};
 handle_info({wake_at, Pid, At}, #s{sim = Sim} = S) ->
     case atomics:get(Sim#sim.gvt_now, 1) of
         G when At =< G -> Pid ! {gvt, G}, {noreply, S};
-        _ -> {noreply, S#s{waiting = add_waiting(At, Pid, S#s.waiting)}}
+        _ -> {noreply, S#s{waiting = rw_wakeups:add(At, Pid, S#s.waiting)}}
     end;
 handle_info({regroup_ack, _At, _Pid} = Ack, S) ->
     S#s.run_gvt ! Ack,
@@ -115,11 +115,3 @@ now_known(T, #sim{n = N} = Sim) ->
 met(#sim{met = Met}) ->
     lists:append([ets:take(Met, Pair) || Pair <- ets:select(Met, [{{'$1', '_'}, [], ['$1']}])]).
 
-add_waiting(At, Pid, [{A, _} = First | Rest]) when A < At -> [First | add_waiting(At, Pid, Rest)];
-add_waiting(At, Pid, [{At, Pids} | Rest]) -> [{At, [Pid | Pids]} | Rest];
-add_waiting(At, Pid, Later) -> [{At, [Pid]} | Later].
-
-wake(G, [{At, Pids} | Rest]) when At =< G ->
-    _ = [Pid ! {gvt, G} || Pid <- Pids],
-    wake(G, Rest);
-wake(_G, Waiting) -> Waiting.

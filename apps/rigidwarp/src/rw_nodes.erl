@@ -129,18 +129,14 @@ start_distribution(Name, Domain) ->
     end.
 
 start_epmd() ->
-    case os:find_executable("epmd", filename:join([code:root_dir(), "erts-" ++ erlang:system_info(version), "bin"])) of
-        false ->
-            case os:find_executable("epmd") of
-                false -> error;
-                Epmd -> daemon(Epmd)
-            end;
-        Epmd -> daemon(Epmd)
+    ErtsBin = filename:join([code:root_dir(), "erts-" ++ erlang:system_info(version), "bin"]),
+    case [E || E <- [os:find_executable("epmd", ErtsBin), os:find_executable("epmd")], E =/= false] of
+        [Epmd | _] ->
+            _ = os:cmd(Epmd ++ " -daemon"),
+            timer:sleep(200);
+        [] ->
+            error
     end.
-
-daemon(Epmd) ->
-    _ = os:cmd(Epmd ++ " -daemon"),
-    timer:sleep(200).
 
 random_cookie() ->
     list_to_atom(lists:flatten([io_lib:format("~2.16.0b", [B]) || <<B>> <= crypto:strong_rand_bytes(16)])).

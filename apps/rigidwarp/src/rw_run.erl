@@ -212,15 +212,7 @@ teardown(#r{sup = none} = R) -> R;
 teardown(#r{sup = Sup, watched = W} = R0) ->
     _ = [erlang:demonitor(Ref, [flush]) || Ref <- maps:keys(W)],
     R = R0#r{remote = add_counts(R0#r.remote, site_counts(R0)), sites = []},
-    %% a monitor, not the link: the supervisor may be gone already, its
-    %% exit taken (a monitor of a dead process is told at once)
-    MRef = erlang:monitor(process, Sup),
-    exit(Sup, shutdown),
-    receive {'DOWN', MRef, process, Sup, _} -> ok
-    after 5000 ->
-            exit(Sup, kill),
-            receive {'DOWN', MRef, process, Sup, _} -> ok end
-    end,
+    ok = rw_sim_parts:stop(Sup),
     receive {'EXIT', Sup, _} -> ok after 0 -> ok end,
     R#r{sup = none, watched = #{}}.
 

@@ -6,7 +6,7 @@
 -module(rw_sim_parts).
 -behaviour(supervisor).
 -include("rigidwarp.hrl").
--export([worker/3, bucket_pool/4, body_pool/0, start_bodies/3, init/1]).
+-export([worker/3, bucket_pool/4, body_pool/0, start_bodies/3, stop/1, init/1]).
 
 %% Start a body for each {Sphere, State}: [{Idx, Id, Pid}].
 -spec start_bodies(pid(), #sim{}, [{#sphere{}, #st{}}]) -> [{non_neg_integer(), binary(), pid()}].
@@ -17,6 +17,19 @@ start_bodies(BodySup, Sim, Bodies) ->
                end || {#sphere{idx = Idx, id = Id} = Sphere, St} <- Bodies],
     true = ets:insert(Sim#sim.procs, [{Idx, Pid} || {Idx, _, Pid} <- Started]),
     Started.
+
+%% Stop a simulation's supervisor and wait until it is gone (killed if it
+%% takes more than 5 s). A monitor, not a link: the supervisor may be gone
+%% already, its exit taken (a monitor of a dead process is told at once).
+-spec stop(pid()) -> ok.
+stop(Sup) ->
+    MRef = erlang:monitor(process, Sup),
+    exit(Sup, shutdown),
+    receive {'DOWN', MRef, process, Sup, _} -> ok
+    after 5000 ->
+            exit(Sup, kill),
+            receive {'DOWN', MRef, process, Sup, _} -> ok end
+    end.
 
 %% The child spec of a pool of N buckets.
 -spec bucket_pool(#model{}, pos_integer(), pos_integer(), rw_stats:counters() | undefined) -> supervisor:child_spec().

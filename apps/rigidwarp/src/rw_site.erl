@@ -100,7 +100,7 @@ loop(#site{parent = Parent, sup = Sup} = S) ->
             From ! {Ref, Reply},
             loop(S1);
         {'EXIT', Parent, Reason} ->
-            stop(Sup),
+            ok = rw_sim_parts:stop(Sup),
             exit(Reason);
         {'EXIT', Sup, Reason} ->
             exit(Reason);
@@ -122,15 +122,6 @@ handle(stats, #site{stats = Stats, profile = Profile, sent = {N0, B0}} = S) ->
                {Lvts, Idxs} -> lists:max([0 | [atomics:get(Lvts, rw_sim:lvt_slot(I)) || I <- Idxs]])
            end,
     {{(rw_stats:read(Stats, Profile))#{dist_messages => N - N0, dist_bytes => B - B0}, Lead}, S}.
-
-stop(Sup) ->
-    MRef = erlang:monitor(process, Sup),
-    exit(Sup, shutdown),
-    receive {'DOWN', MRef, process, Sup, _} -> ok
-    after 5000 ->
-            exit(Sup, kill),
-            receive {'DOWN', MRef, process, Sup, _} -> ok end
-    end.
 
 %% What this node has sent over its distribution connections: messages
 %% (packets) and bytes.
