@@ -97,7 +97,7 @@ options() ->
      {migrate, boolean, "over several nodes, place the bodies anew at a checkpoint that finds a tenth of them in "
       "other nodes' space (default true)"},
      {groups, boolean, "step bodies in persistent contact as one entity (default true)"},
-     {group_max, count, "the most bodies in one contact group (default 64)"},
+     {group_max, count, "the most bodies in one contact group (default 1024)"},
      {watchdog_ms, count, "how long GVT may stand still before the run restarts (default 10000)"},
      {max_restarts, non_neg, "restarts after faults allowed within restart_period_ms (default 5)"},
      {restart_period_ms, count, "the period of the restart budget (default 10000)"},

@@ -18,6 +18,7 @@
 -record(data, {
     sim :: #sim{},
     entity :: rw_entity:entity(),
+    plans = none :: rw_tvht_plan:cache(),       % this entity's last TVHT plan, for its next write
     delay = 0 :: non_neg_integer()              % test hook: max pause (ms) before TVHT work and sends
 }).
 -opaque data() :: #data{}.
@@ -164,14 +165,14 @@ stage(_) -> none.
 
 perform([], Phase, D) ->
     {Phase, D};
-perform([{tvht_write, T0, Spheres, Steps, Last}], _Phase, #data{sim = Sim} = D) ->
+perform([{tvht_write, T0, Spheres, Steps, Last}], _Phase, #data{sim = Sim, plans = Cache} = D) ->
     #sim{buckets = Buckets, placement = Place, scene = #scene{model = M, cell_size = Cell, substep = Dt}} = Sim,
-    Planner = fun() -> rw_tvht_plan:write(self(), T0, Spheres, Steps, M, {Cell, Dt}, Place) end,
+    Planner = fun() -> rw_tvht_plan:write(self(), T0, Spheres, Steps, M, {Cell, Dt}, Place, Cache) end,
     %% hashing the states to cells and buckets is collision-checking work
-    {Write, Plan} = profiled(Sim, tvht_reductions, Planner),
+    {Write, Plan, Cache1} = profiled(Sim, tvht_reductions, Planner),
     maybe_delay(D),
     {UpTo, Hits, Ids, Where} = rw_tvht:write(Buckets, Write, Plan, Last),
-    feed({reply, {written, UpTo, Hits, Ids, Where}}, D);
+    feed({reply, {written, UpTo, Hits, Ids, Where}}, D#data{plans = Cache1});
 perform([{tvht_delete, Where, Idxs, R}], _Phase, #data{sim = #sim{buckets = Buckets}} = D) ->
     maybe_delay(D),
     feed({reply, {deleted, rw_tvht:delete(Buckets, self(), Where, Idxs, R)}}, D);

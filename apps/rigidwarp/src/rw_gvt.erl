@@ -104,7 +104,7 @@ sites(Gvt, Sites, {SiteOf, GvtOf, Voters}) ->
     gen_server:call(Gvt, {sites, Sites, SiteOf, GvtOf, Voters}).
 
 -spec init({#sim{}, options()}) -> {ok, #s{}}.
-init({#sim{scene = #scene{spheres = Spheres}, n = N, records = Records, ring = Ring, group_max = Max,
+init({#sim{scene = #scene{spheres = Spheres, model = #model{gravity = Gravity}}, n = N, records = Records, ring = Ring, group_max = Max,
            grouping = Mode} = Sim, Opts}) ->
     %% Each advance brings the records of a frame or more onto this heap
     %% (held until GVT is published, for the regroup plan), and a heap
@@ -120,7 +120,7 @@ init({#sim{scene = #scene{spheres = Spheres}, n = N, records = Records, ring = R
             ring_size = maps:get(ring_size, Opts, 1024), idxs = Idxs, checkpoint_ms = Every,
             checkpoint_due = erlang:monotonic_time(millisecond) + Every,
             radii = maps:from_list([{I, R} || #sphere{idx = I, radius = R} <- Spheres]),
-            groups = rw_regroup:new(Idxs, Max, Mode)}}.
+            groups = rw_regroup:new(Idxs, Max, Mode, Gravity =/= undefined)}}.
 
 %% GVT is read from the run (rw_run:gvt/1), which outlives this process.
 -spec handle_call(term(), gen_server:from(), #s{}) -> {reply, ok | {error, unknown_call}, #s{}}.

@@ -28,7 +28,7 @@
 %% decide/4 is what the GVT process does at a regroup point: the groups
 %% from the committed states, and whom to tell what; it carries that out.
 -module(rw_regroup).
--export([new/3, by_site/2, quiet/2, decide/4, plan/4, moves/3]).
+-export([new/3, new/4, by_site/2, quiet/2, decide/4, plan/4, plan/5, moves/3]).
 -export_type([body/0, leaders/0, move/0, pairs/0, groups/0]).
 
 %% A body's committed state at the regroup point: idx, radius, position,
@@ -55,6 +55,8 @@
     grouped = false :: boolean(),            % any group of two bodies or more
     max :: pos_integer(),
     mode :: persistent | eager,              % eager: tests only
+    %% under gravity: a body closing in on a group joins it (landing)
+    landing = false :: boolean(),
     %% over several nodes, each body's node: a group is one process, so
     %% only bodies of one node are grouped
     sites = none :: none | #{non_neg_integer() => non_neg_integer()}
@@ -62,7 +64,15 @@
 -opaque groups() :: #groups{}.
 
 -spec new([non_neg_integer()], pos_integer(), persistent | eager) -> groups().
-new(Idxs, Max, Mode) -> #groups{leaders = maps:from_list([{I, I} || I <- Idxs]), max = Max, mode = Mode}.
+new(Idxs, Max, Mode) -> new(Idxs, Max, Mode, false).
+
+%% Landing: bodies fall (the scene has gravity), so a body closing in on a
+%% group comes to rest on it, and joins it before it touches it. Without
+%% gravity a body that meets a group bounces off and flies on: it joins
+%% only once it has met a member often.
+-spec new([non_neg_integer()], pos_integer(), persistent | eager, boolean()) -> groups().
+new(Idxs, Max, Mode, Landing) ->
+    #groups{leaders = maps:from_list([{I, I} || I <- Idxs]), max = Max, mode = Mode, landing = Landing}.
 
 %% Group only bodies on one node: Sites maps each body's idx to its node.
 -spec by_site(groups(), #{non_neg_integer() => non_neg_integer()}) -> groups().
@@ -79,13 +89,14 @@ quiet(Met, #groups{mode = Mode, grouped = Grouped}) ->
 %% changes must do at the next regroup point ({Idx, Move}: tell the process
 %% of body Idx). Pids maps idx to body process.
 -spec decide([body()], pairs(), #{non_neg_integer() => pid()}, groups()) -> {[{non_neg_integer(), move()}], groups()}.
-decide(Bodies, Met, Pids, #groups{leaders = Old, max = Max, mode = Mode, sites = Sites} = G) ->
+decide(Bodies, Met, Pids, #groups{leaders = Old, max = Max, mode = Mode, landing = Landing, sites = Sites} = G) ->
     Pairs = case Mode of eager -> eager; persistent -> Met end,
     New = case Sites of
-              none -> plan(Bodies, Old, Max, Pairs);
+              none -> plan(Bodies, Old, Max, Pairs, Landing);
               _ ->
                   BySite = maps:groups_from_list(fun({I, _, _, _}) -> maps:get(I, Sites) end, Bodies),
-                  maps:fold(fun(_, Share, Acc) -> maps:merge(Acc, plan(Share, Old, Max, Pairs)) end, #{}, BySite)
+                  maps:fold(fun(_, Share, Acc) -> maps:merge(Acc, plan(Share, Old, Max, Pairs, Landing)) end,
+                            #{}, BySite)
           end,
     Moves = moves(Old, New, Pids),
     {[{I, Move} || {I, #{send := _} = Move} <- maps:to_list(Moves)],
@@ -94,10 +105,14 @@ decide(Bodies, Met, Pids, #groups{leaders = Old, max = Max, mode = Mode, sites =
 %% The groups from Bodies, the current groups and the pairs that met at
 %% many substeps lately (eager: tests).
 -spec plan([body()], leaders(), pos_integer(), pairs() | eager) -> leaders().
-plan(Bodies, Old, Max, Met) ->
-    %% (a body alone that met nobody stays alone: only the others can have
-    %% an edge)
-    {Stay, Join} = edges(candidates(Bodies, Old, Met), Old, Met),
+plan(Bodies, Old, Max, Met) -> plan(Bodies, Old, Max, Met, false).
+
+%% ... and with Landing, bodies closing in on a group join it (new/4).
+-spec plan([body()], leaders(), pos_integer(), pairs() | eager, boolean()) -> leaders().
+plan(Bodies, Old, Max, Met, Landing) ->
+    %% (a body alone that met nobody stays alone, unless it is landing on
+    %% a group: only the others can have an edge)
+    {Stay, Join} = edges(candidates(Bodies, Old, Met, Landing), Old, Met, Landing),
     %% union-find over the bodies with an edge (any other is its own root)
     Uf1 = lists:foldl(fun({A, B}, U) -> union(A, B, Max, U) end, #{}, Stay),
     Uf = lists:foldl(fun({_, {A, B}}, U) -> union(A, B, Max, U) end, Uf1, lists:sort(Join)),
@@ -132,13 +147,17 @@ moves(Old, New, Pids) ->
 
 %%% Internals
 
-candidates(Bodies, _Old, eager) -> Bodies;
-candidates(Bodies, Old, Met) ->
+candidates(Bodies, _Old, eager, _Landing) -> Bodies;
+candidates(Bodies, Old, Met, Landing) ->
     InGroup = maps:fold(fun(I, L, Acc) when I =/= L -> Acc#{I => true, L => true};
                            (_, _, Acc) -> Acc
                         end, #{}, Old),
-    Seen = maps:fold(fun({A, B}, _, Acc) -> Acc#{A => true, B => true} end, InGroup, Met),
-    [B || {I, _, _, _} = B <- Bodies, is_map_key(I, Seen)].
+    case Landing andalso map_size(InGroup) > 0 of
+        true -> Bodies;
+        false ->
+            Seen = maps:fold(fun({A, B}, _, Acc) -> Acc#{A => true, B => true} end, InGroup, Met),
+            [B || {I, _, _, _} = B <- Bodies, is_map_key(I, Seen)]
+    end.
 
 %% Leader => sorted members.
 groups(Leaders) ->
@@ -148,17 +167,44 @@ groups(Leaders) ->
 
 is_group([L | _] = G, Groups) -> maps:get(L, Groups, none) =:= G.
 
-%% Pairs close enough to stay together or to join.
-edges(Bodies, Old, Met) ->
+%% Pairs close enough to stay together or to join: a pair that met often,
+%% or with Landing a body closing in on a group's member (a sphere landing
+%% on a pile joins it before it touches, instead of meeting the group at
+%% every substep until it has met it often enough).
+edges(Bodies, Old, Met, Landing) ->
     Reach = case Met of eager -> ?EAGER; _ -> ?NEAR end,
+    Grouped = case Met =/= eager andalso Landing of
+                  false -> #{};
+                  true -> maps:fold(fun(I, L, Acc) when I =/= L -> Acc#{I => true, L => true};
+                                       (_, _, Acc) -> Acc
+                                    end, #{}, Old)
+              end,
+    Motion = case map_size(Grouped) of
+                 0 -> #{};
+                 _ -> maps:from_list([{I, {P, V}} || {I, _, P, V} <- Bodies])
+             end,
     lists:foldl(fun({{A, B} = Pair, Dist, Sum}, {S, J}) ->
                         case maps:get(A, Old) =:= maps:get(B, Old) of
                             true when Dist < ?NEAR * Sum -> {[Pair | S], J};
                             false when Met =:= eager -> {S, [{Dist, Pair} | J]};
-                            false when Dist < ?NEAR * Sum, is_map_key(Pair, Met) -> {S, [{Dist, Pair} | J]};
+                            false when Dist < ?NEAR * Sum ->
+                                case is_map_key(Pair, Met) orelse closing(A, B, Grouped, Motion) of
+                                    true -> {S, [{Dist, Pair} | J]};
+                                    false -> {S, J}
+                                end;
                             _ -> {S, J}
                         end
                 end, {[], []}, close(Bodies, Reach)).
+
+%% One of A and B is in a group and they move towards each other.
+closing(A, B, Grouped, Motion) ->
+    case is_map_key(A, Grouped) orelse is_map_key(B, Grouped) of
+        true ->
+            {PA, VA} = maps:get(A, Motion),
+            {PB, VB} = maps:get(B, Motion),
+            rw_vec:dot(rw_vec:sub(VB, VA), rw_vec:sub(PB, PA)) < 0.0;
+        false -> false
+    end.
 
 %% Pairs {{A, B}, Distance, SumOfRadii} closer than F x the sum of their
 %% radii, found by sweep and prune: within the largest reach along x, y and

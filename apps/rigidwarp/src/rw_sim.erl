@@ -22,7 +22,7 @@
 %% The most bodies the engine steps as one contact group, by default: a
 %% group is one process, and groups should remain many enough to keep every
 %% scheduler busy.
--define(DEFAULT_GROUP_MAX, 64).
+-define(DEFAULT_GROUP_MAX, 1024).
 %% The LVT of a body on another node, as this node's bodies read it.
 -define(NOT_HERE, 16#FFFFFFFFFFFFFFFF).
 

@@ -5,13 +5,17 @@
 %% order, the order in which the buckets are locked (Lemma 1).
 -module(rw_tvht_plan).
 -include("rigidwarp.hrl").
--export([write/7, for_bucket/2, first_contacts/2, delete/1]).
--export_type([plan/0, where/0]).
+-export([write/7, write/8, for_bucket/2, first_contacts/2, delete/1]).
+-export_type([plan/0, where/0, cache/0]).
 
 %% Per bucket index, ascending: the cells written and the spans in them.
 -type plan() :: [{non_neg_integer(), [rw_hash:cell()], [rw_cells:span()]}].
 %% Where a write went: per bucket index, its cells.
 -type where() :: [{non_neg_integer(), [rw_hash:cell()]}].
+%% A writer's last plan without its times, for write/8: each member's box
+%% of cells, and per bucket the cells and the members in each.
+-type cache() :: none | {[{non_neg_integer(), rw_hash:box()}], [{non_neg_integer(), [rw_hash:cell()],
+                                                                   [{rw_hash:cell(), [non_neg_integer()]}]}]}.
 
 %% The write of an entity's step: Writer's members Spheres (a tuple, in
 %% member order) with their packed states Steps from T0 on, and its plan
@@ -26,6 +30,54 @@ write(Writer, T0, Spheres, Steps, #model{ccd = Ccd}, {CellSize, Dt}, NBuckets) -
              union([Bounds || {{_, _, _, _, _, Bounds}, _} <- Members])},
     Plan = plan([{Idx, cell_spans(T0, Spans, CellSize, Dt)} || {{Idx, _, _, _, _, _}, Spans} <- Members], NBuckets),
     {Write, Plan}.
+
+%% write/7 for a writer that writes again and again with its members in the
+%% same cells (bodies resting in a pile, a group in lock step with a
+%% neighbour): when every member's states keep the box of cells they had
+%% in the last write, the plan is that write's with the new times, with no
+%% cells hashed to buckets again. Each member then spans its whole box for
+%% the whole step, which covers every cell it touches at every substep
+%% (a wider span adds candidates to the buckets' tests, never contacts),
+%% so the buckets find the same contacts as with write/7.
+-spec write(term(), non_neg_integer(), tuple(), [rw_states:packed()], #model{}, {float(), pos_integer()},
+            pos_integer() | rw_place:placement(), cache()) -> {rw_cells:write(), plan(), cache()}.
+write(Writer, T0, Spheres, Steps, #model{ccd = false}, {CellSize, Dt}, NBuckets, Cache) ->
+    [N | Counts] = [rw_states:count(Packed) || Packed <- Steps],
+    Members = [member_write(Writer, element(K, Spheres), T0, Packed, false)
+               || {K, Packed} <- lists:zip(lists:seq(1, length(Steps)), Steps)],
+    Write = {Writer, T0, maps:from_list([{Idx, Payload} || {{Idx, _, _, _, _, _} = Payload, _} <- Members]),
+             union([Bounds || {{_, _, _, _, _, Bounds}, _} <- Members])},
+    Shape = [{Idx, all_box(Extents, R, CellSize)} || {{Idx, _, _, _, _, _}, {_, Extents, R}} <- Members],
+    Tb = T0 + (N - 1) * Dt,
+    Even = lists:all(fun(C) -> C =:= N end, Counts),
+    case Cache of
+        {Shape, Skeleton} when Even ->
+            {Write, [{B, Cells, [{C, T0, Tb, [{I, T0, Tb} || I <- Is]} || {C, Is} <- ByCell]}
+                     || {B, Cells, ByCell} <- Skeleton], Cache};
+        _ ->
+            MemberSpans = [{Idx, cell_spans(T0, Spans, CellSize, Dt)} || {{Idx, _, _, _, _, _}, Spans} <- Members],
+            Plan = plan(MemberSpans, NBuckets),
+            {Write, Plan, cache(Shape, MemberSpans, Plan, T0, Tb)}
+    end;
+write(Writer, T0, Spheres, Steps, M, CellDt, NBuckets, _Cache) ->
+    {Write, Plan} = write(Writer, T0, Spheres, Steps, M, CellDt, NBuckets),
+    {Write, Plan, none}.
+
+%% The cells of every state of a step (without CCD): its extents padded by
+%% the radius.
+all_box({X0, Y0, Z0, X1, Y1, Z1}, R, C) -> rw_hash:box({{X0 - R, Y0 - R, Z0 - R}, {X1 + R, Y1 + R, Z1 + R}}, C).
+
+%% A plan is kept for the next write when each member spanned the cells of
+%% its box for the whole step (and only then do they stand for its box).
+cache(Shape, MemberSpans, Plan, T0, Tb) ->
+    Whole = lists:all(fun({{_, Box}, {_, Spans}}) ->
+                              map_size(Spans) =:= rw_hash:box_size(Box) andalso
+                                  lists:all(fun({Ta, Tz}) -> Ta =:= T0 andalso Tz =:= Tb end, maps:values(Spans))
+                      end, lists:zip(Shape, MemberSpans)),
+    case Whole of
+        true -> {Shape, [{B, Cells, [{C, [I || {I, _, _} <- Ms]} || {C, _, _, Ms} <- Spans]} || {B, Cells, Spans} <- Plan]};
+        false -> none
+    end.
 
 %% One member's payload for the buckets, and what cell_spans/4 needs.
 member_write(Writer, #sphere{idx = Idx, radius = R} = S, T0, Packed, Ccd) ->

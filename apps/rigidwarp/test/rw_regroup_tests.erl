@@ -47,6 +47,22 @@ stay_margin_test() ->
     Far = bodies([{3, 0.0, 0.0}, {7, 1.3, 0.0}]),
     ?assertEqual(alone(Far), rw_regroup:plan(Far, Together, 64, #{})).
 
+%% Under gravity a body closing in on a group joins it before it has met
+%% it; one moving away, or any without gravity, does not.
+landing_test() ->
+    Pile = #{3 => 3, 5 => 3, 7 => 7},
+    Closing = bodies([{3, 0.0, 0.0}, {5, 1.0, 0.0}, {7, 2.2, -2.0}]),
+    ?assertEqual(#{3 => 3, 5 => 3, 7 => 3}, rw_regroup:plan(Closing, Pile, 64, #{}, true)),
+    ?assertEqual(#{3 => 3, 5 => 3, 7 => 7}, rw_regroup:plan(Closing, Pile, 64, #{}, false)),
+    Leaving = bodies([{3, 0.0, 0.0}, {5, 1.0, 0.0}, {7, 2.2, 2.0}]),
+    ?assertEqual(#{3 => 3, 5 => 3, 7 => 7}, rw_regroup:plan(Leaving, Pile, 64, #{}, true)),
+    %% two lone bodies closing in on each other: no group to land on
+    Pair = bodies([{3, 0.0, 1.0}, {7, 1.2, -1.0}]),
+    ?assertEqual(alone(Pair), rw_regroup:plan(Pair, alone(Pair), 64, #{}, true)),
+    %% too far to join yet
+    Far = bodies([{3, 0.0, 0.0}, {5, 1.0, 0.0}, {7, 2.4, -2.0}]),
+    ?assertEqual(#{3 => 3, 5 => 3, 7 => 7}, rw_regroup:plan(Far, Pile, 64, #{}, true)).
+
 eager_joins_near_bodies_test() ->
     B = bodies([{3, 0.0, -9.0}, {7, 2.5, 9.0}, {9, 9.0, 0.0}]),
     ?assertEqual(#{3 => 3, 7 => 3, 9 => 9}, rw_regroup:plan(B, alone(B), 64, eager)).

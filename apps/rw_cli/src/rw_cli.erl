@@ -29,7 +29,7 @@
       --ccd on|off           swept (continuous) collision tests (default: the scene's)
       --groups on|off        timewarp: step bodies in persistent contact as one entity
                              (default on; off is the paper's one entity per body)
-      --group-max N          timewarp: the most bodies in one contact group (default 64)
+      --group-max N          timewarp: the most bodies in one contact group (default 1024)
       --quiet                no progress line on stderr
       the summary's keys in this order (those the run has; any others follow, sorted):
                              scene, engine, bodies, substep_ms, stride_ms, sim_ms, wall_ms,

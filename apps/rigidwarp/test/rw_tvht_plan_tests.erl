@@ -1,0 +1,79 @@
+%% The TVHT plan of a write, computed afresh and from the writer's last
+%% plan (write/8): the second covers every cell each member's states touch
+%% at every substep, as the first does.
+-module(rw_tvht_plan_tests).
+-include_lib("eunit/include/eunit.hrl").
+-include_lib("rw_physics/include/rw_physics.hrl").
+
+-define(CELL, 2.5).
+-define(DT, 1).
+
+model() -> #model{}.
+
+spheres(N) -> list_to_tuple([#sphere{idx = I, id = integer_to_binary(I), radius = 0.5, mass = 1.0, inv_mass = 1.0,
+                                     inv_inertia = 10.0} || I <- lists:seq(1, N)]).
+
+%% Member K's states: Len substeps from P moving by V per substep.
+steps(Starts, Len) ->
+    [rw_states:pack([#st{p = rw_vec:add(P, rw_vec:scale(V, float(I))), v = V} || I <- lists:seq(0, Len - 1)],
+                    undefined, false, false)
+     || {P, V} <- Starts].
+
+%% {Cell, Idx, T} for every substep T a member's span in a cell holds.
+occupancy(Plan) ->
+    lists:usort([{C, I, T} || {_, _, Spans} <- Plan, {C, _, _, Ms} <- Spans, {I, A, B} <- Ms,
+                              T <- lists:seq(A, B, ?DT)]).
+
+%% What each member's states touch: {Cell, Idx, T}.
+touched(Spheres, Steps, T0) ->
+    lists:usort([{C, I, T0 + (K - 1) * ?DT}
+                 || {#sphere{idx = I, radius = R}, Packed} <- lists:zip(tuple_to_list(Spheres), Steps),
+                    K <- lists:seq(1, rw_states:count(Packed)),
+                    C <- rw_hash:cells(rw_shape:sphere_aabb(rw_states:position(Packed, K), R), ?CELL)]).
+
+resting_pile_reuses_its_plan_test() ->
+    Sp = spheres(3),
+    Starts = [{{0.1, 0.2, 0.3}, {0.0, 0.0, 0.0}}, {{1.1, 0.2, 0.3}, {0.0, -0.001, 0.0}},
+              {{2.6, 0.2, 0.3}, {0.001, 0.0, 0.0}}],
+    {W1, P1, Cache} = rw_tvht_plan:write(self(), 10, Sp, steps(Starts, 4), model(), {?CELL, ?DT}, 4, none),
+    ?assertEqual(rw_tvht_plan:write(self(), 10, Sp, steps(Starts, 4), model(), {?CELL, ?DT}, 4), {W1, P1}),
+    ?assertNotEqual(none, Cache),
+    %% the next write, later, in the same cells: the cached plan, new times
+    Later = [{rw_vec:add(P, rw_vec:scale(V, 4.0)), V} || {P, V} <- Starts],
+    Steps2 = steps(Later, 6),
+    {W2, P2, Cache} = rw_tvht_plan:write(self(), 14, Sp, Steps2, model(), {?CELL, ?DT}, 4, Cache),
+    {W2, Fresh} = rw_tvht_plan:write(self(), 14, Sp, Steps2, model(), {?CELL, ?DT}, 4),
+    ?assertEqual(Fresh, P2),
+    ?assertEqual(touched(Sp, Steps2, 14), [X || X <- occupancy(P2), lists:member(X, touched(Sp, Steps2, 14))]).
+
+%% A member that moves to other cells makes a fresh plan; whatever the
+%% cache, every cell a member touches is in the plan at that substep.
+moving_members_plan_afresh_test() ->
+    rand:seed(exsss, 7),
+    Sp = spheres(5),
+    {_, _, Reused} =
+        lists:foldl(
+          fun(Round, {Cache, Prev, Hits}) ->
+                  %% every other round the members start where they did
+                  %% before, moving little: their boxes may be the same
+                  Starts = case Round rem 2 of
+                               0 -> [{P, rw_vec:scale(V, 0.1)} || {P, V} <- Prev];
+                               1 -> [{{rand:uniform() * 6.0, rand:uniform() * 6.0, 0.0},
+                                      {(rand:uniform() - 0.5) * 0.2 * (Round rem 3), 0.0, 0.0}} || _ <- lists:seq(1, 5)]
+                           end,
+                  Steps = steps(Starts, 1 + rand:uniform(8)),
+                  T0 = Round * 10,
+                  {W, Plan, Cache1} = rw_tvht_plan:write(self(), T0, Sp, Steps, model(), {?CELL, ?DT}, 4, Cache),
+                  {W, _} = rw_tvht_plan:write(self(), T0, Sp, Steps, model(), {?CELL, ?DT}, 4),
+                  Occ = occupancy(Plan),
+                  [?assert(lists:member(X, Occ)) || X <- touched(Sp, Steps, T0)],
+                  {Cache1, Starts, Hits + case Cache =/= none andalso Cache1 =:= Cache of true -> 1; false -> 0 end}
+          end, {none, [], 0}, lists:seq(1, 200)),
+    ?assert(Reused > 10).
+
+%% With CCD the plan is always made afresh.
+ccd_plans_afresh_test() ->
+    Sp = spheres(1),
+    St = #st{p = {0.0, 0.0, 0.0}, v = {1.0, 0.0, 0.0}},
+    Packed = rw_states:pack([St], [{0.001, 0.0, 0.0}], false, true),
+    {_, _, none} = rw_tvht_plan:write(self(), 0, Sp, [Packed], (model())#model{ccd = true}, {?CELL, ?DT}, 4, none).
