@@ -5,7 +5,7 @@
 -include_lib("stdlib/include/assert.hrl").
 -include("rw_test.hrl").
 -export([all/0, suite/0]).
--export([bench_machine/1]).
+-export([bench_machine/1, bench_parallelism/1, bench_scale/1]).
 -export([nodes_flags/1,
          help/1, validate_every_scenario/1, summary_is_last_line/1, frames_file/1,
          bad_flags_exit_2/1, integrator_and_ccd_flags/1, groups_flags/1, bad_scene_exit_2/1, scenes_lists_bundled/1,
@@ -19,7 +19,8 @@ all() -> [help, version, validate_every_scenario, summary_is_last_line, frames_f
           nodes_flags,
           bad_flags_exit_2,
           bad_scene_exit_2, scene_names, scenes_lists_bundled, bad_input_corpus, generated_bad_inputs, progress_line,
-          snapshot_png, frames_must_match_scene, live_view_reports, shell_api_rejects_bad_arguments, summary_key_order, bench_machine].
+          snapshot_png, frames_must_match_scene, live_view_reports, shell_api_rejects_bad_arguments, summary_key_order, bench_machine,
+          bench_parallelism, bench_scale].
 
 help(_Config) ->
     {0, Out, _} = rw_test_lib:run_escript(["help"]),
@@ -236,7 +237,13 @@ bad_flags_exit_2(_Config) ->
              {["bench", "accuracy", "--scenes", "cylinders_200"], "cylinders_200: the exact solver models spheres"},
              {["bench", "machine", "--repeats", "0"], "--repeats must be a positive integer, got 0"},
              {["bench", "machine", "--fast"], "bench machine takes only --repeats N"},
-             {["bench", "speed"], "unknown benchmark speed (known: accuracy, machine)"},
+             {["bench", "speed"], "unknown benchmark speed (known: accuracy, machine, parallelism, scale)"},
+             {["bench", "scale", "--counts", "10,x"], "--counts must be a positive integer, got x"},
+             {["bench", "scale", "extra"], "unexpected argument extra"},
+             {["bench", "parallelism", "--until", "0"], "--until must be a positive number of ms"},
+             {["bench", "parallelism", "--repeats", "x"], "--repeats must be a positive integer, got x"},
+             {["bench", "parallelism", "--fast"], "unknown flag --fast"},
+             {["bench", "parallelism", "no_such_scene"], "no_such_scene: no such scene"},
              %% a newline in an argument is shown escaped: every message is one line
              {["run", "two\nlines"], "two\\nlines: no such scene"},
              {["run", "two\nlines.json"], "two\\nlines.json: $: cannot read file"},
@@ -560,6 +567,39 @@ shell_api_rejects_bad_arguments(_Config) ->
          ?assertMatch({match, _}, re:run(Msg, "\\Q" ++ Expect ++ "\\E"))
      end || {F, Expect} <- Cases],
     ?assertEqual(Before, supervisor:which_children(rw_sims_sup)).
+
+%% The parallelism projection of a scene: a table row and a JSON line whose
+%% figures hold together (a speedup is at most the core count and the
+%% average parallelism, and grows with the cores).
+bench_parallelism(_Config) ->
+    {0, Out, _} = rw_test_lib:run_escript(["bench", "parallelism", "bouncing_50_250", "--until", "200",
+                                           "--repeats", "1"]),
+    ?assertMatch({match, _}, re:run(Out, "\\| bouncing_50_250 \\| [0-9]+ \\|")),
+    #{<<"until_ms">> := 200, <<"scenes">> := [#{<<"scene">> := <<"bouncing_50_250">>, <<"work">> := Work,
+                                                 <<"critical_path">> := Path, <<"parallelism">> := Par,
+                                                 <<"projected">> := Projected, <<"measured_1_to_2">> := Measured}]} =
+        last_json_line(Out),
+    ?assert(0 < Path andalso Path =< Work),
+    ?assertEqual([<<"16">>, <<"2">>, <<"4">>, <<"64">>, <<"8">>], lists:sort(maps:keys(Projected))),
+    Speedups = [maps:get(integer_to_binary(P), Projected) || P <- [2, 4, 8, 16, 64]],
+    ?assertEqual(Speedups, lists:sort(Speedups)),
+    [?assert(S =< P + 1.0e-9 andalso S =< Par + 1.0e-9) || {P, S} <- lists:zip([2, 4, 8, 16, 64], Speedups)],
+    ?assert(Measured > 0).
+
+%% Gases of growing size: a row each, the first the measure of the others,
+%% and memory per body at three points of the run.
+bench_scale(_Config) ->
+    {0, Out, _} = rw_test_lib:run_escript(["bench", "scale", "--counts", "20,60", "--until", "100"]),
+    #{<<"until_ms">> := 100, <<"counts">> := [#{<<"spheres">> := 20, <<"vs_first">> := 1.0} = First,
+                                               #{<<"spheres">> := 60, <<"vs_first">> := Vs} = Second]} =
+        last_json_line(Out),
+    [begin
+         ?assert(Rate > 0 andalso Running > 0 andalso Wall > 0),
+         ?assertMatch([_, _, _], Kib)
+     end || #{<<"body_substeps_per_s">> := Rate, <<"running_per_s">> := Running, <<"wall_ms">> := Wall,
+              <<"kib_per_body">> := Kib} <- [First, Second]],
+    ?assertBitwise(maps:get(<<"running_per_s">>, Second) / maps:get(<<"running_per_s">>, First), Vs),
+    ?assertMatch({match, _}, re:run(Out, "\\| 60 \\| [0-9]+ \\|")).
 
 %% The machine's own scaling: one JSON line with every pair's times, whose
 %% ratios give the median and the range, and the schedulers put back.

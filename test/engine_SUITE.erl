@@ -18,7 +18,7 @@
 -export([scenarios_equal/1, contact_scenes_equal/1, strides_and_buckets_equal/1, random_scenes_equal/1,
          random_delays_terminate_and_equal/1, watchdog_names_stuck_body/1,
          no_leaks_after_100_runs/1, escript_frames_identical/1, frames_api/1, frame_times_only/1, ring_keeps_last_frames/1,
-         contact_groups/1, crashes_restart_from_checkpoint/1, stats_tell_the_truth/1]).
+         contact_groups/1, crashes_restart_from_checkpoint/1, stats_tell_the_truth/1, traced_run/1]).
 
 suite() -> [{timetrap, {minutes, 15}}].
 
@@ -29,7 +29,7 @@ groups() ->
                      escript_frames_identical, contact_groups]},
      {liveness, [], [random_delays_terminate_and_equal, watchdog_names_stuck_body]},
      {lifecycle, [], [no_leaks_after_100_runs, frames_api, frame_times_only, ring_keeps_last_frames,
-                      crashes_restart_from_checkpoint, stats_tell_the_truth]}].
+                      crashes_restart_from_checkpoint, stats_tell_the_truth, traced_run]}].
 
 init_per_suite(Config) ->
     {ok, _} = application:ensure_all_started(rigidwarp),
@@ -656,6 +656,39 @@ stats_tell_the_truth(_Config) ->
     ?assertBitwise(Done, rigidwarp:stats(Sim)),
     ?assertMatch(#{status := done, gvt := 1500, committed_substeps := 300000}, Done),
     ok = rigidwarp:stop(Sim).
+
+%% A traced run (the parallelism projection, rw_trace) has the same frames,
+%% and records tasks of bodies, buckets and the GVT process whose messages
+%% join them: a graph whose critical path is a small part of its work on
+%% a gas of 200 spheres, and a large one on a pile that is one group.
+traced_run(_Config) ->
+    {ok, Gas} = rigidwarp:load(rw_test_lib:scenario("bouncing_200_250.json"), #{until => 300}),
+    {ok, Pile} = rigidwarp:load(rw_test_lib:test_scene("pile_40.json"), #{until => 600}),
+    [begin
+         {Ref, _} = frames(reference, Scene, #{}),
+         Tab = ets:new(trace, [public, duplicate_bag]),
+         {Frames, _} = with_schedulers(1, fun() -> frames(timewarp, Scene, #{trace => Tab}) end),
+         assert_same("traced", Ref, Frames),
+         Tasks = ets:tab2list(Tab),
+         ets:delete(Tab),
+         Kinds = lists:usort([K || {_, _, K, _, _, _, _} <- Tasks]),
+         ?assertEqual([body, bucket, gvt], Kinds),
+         %% most taken-in messages were sent by a recorded task
+         Sent = maps:from_list([{Key, true} || {_, _, _, _, _, Out, _} <- Tasks, Key <- Out]),
+         In = [Key || {_, _, _, _, In, _, _} <- Tasks, Key <- In],
+         Matched = length([K || K <- In, is_map_key(K, Sent)]),
+         ct:pal("~ts: ~b tasks, ~b of ~b messages taken in matched", [Name, length(Tasks), Matched, length(In)]),
+         ?assert(Matched > 0.9 * length(In)),
+         #{work := Work, critical_path := Path, speedup := Speedup} = S = rw_parallelism:analyze(Tasks, [1, 2, 16]),
+         ct:pal("~ts: ~p", [Name, S]),
+         ?assertEqual(1.0, maps:get(1, Speedup)),
+         ?assert(maps:get(2, Speedup) =< maps:get(16, Speedup)),
+         case Name of
+             gas -> ?assert(Path < Work div 4);
+             pile -> ?assert(Path > Work div 2)
+         end
+     end || {Name, Scene} <- [{gas, Gas}, {pile, Pile}]],
+    ok.
 
 sample(Sim, Acc) ->
     case rigidwarp:stats(Sim) of

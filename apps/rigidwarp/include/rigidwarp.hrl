@@ -56,7 +56,8 @@
     %% groups are planned (eager: tests only)
     group_max = 1 :: pos_integer(),
     grouping = persistent :: persistent | eager,
-    delay = none :: none | {Seed :: integer(), MaxMs :: non_neg_integer()}   % test hook (rw_body)
+    delay = none :: none | {Seed :: integer(), MaxMs :: non_neg_integer()},  % test hook (rw_body)
+    trace :: ets:tid() | undefined            % tasks recorded for rw_parallelism (rw_trace)
 }).
 
 %% Wall time (ms) between checkpoints, by default: how much work a fault or

@@ -50,6 +50,7 @@ callback_mode() -> [state_functions, state_enter].
 -spec init({#sim{}, #sphere{}, #st{}}) -> gen_statem:init_result(ready).
 init({#sim{scene = Scene, sync = Cal, owners = Owners, delay = Delay} = Sim, #sphere{idx = Idx} = Sphere, St0}) ->
     ets:insert(Owners, {Idx, self()}),
+    ok = rw_trace:init(Sim#sim.trace),
     MaxMs = case Delay of
                 {Seed, Ms} -> _ = rand:seed(exsss, Seed + Idx), Ms;
                 none -> 0
@@ -108,7 +109,7 @@ unexpected(Type, Msg, #data{entity = E}) ->
     keep_state_and_data.
 
 run(Msg, D) ->
-    {Phase, D1} = feed(Msg, D),
+    {Phase, D1} = task(Msg, D),
     next(Phase, D1).
 
 %% The state that follows; in step, a step is due unless the entity waits.
@@ -143,8 +144,17 @@ drain(D, Last) ->
     end.
 
 drain_more(Msg, D) ->
-    {Phase, D1} = feed(Msg, D),
+    {Phase, D1} = task(Msg, D),
     drain(D1, {Phase, D1}).
+
+%% Msg handled, as one task when the simulation is traced (rw_trace): a
+%% step is begun by the process itself.
+task(Msg, #data{sim = #sim{trace = undefined}} = D) -> feed(Msg, D);
+task(Msg, D) ->
+    ok = rw_trace:begin_task(body, case Msg of {step, _, _} -> none; _ -> Msg end),
+    Result = feed(Msg, D),
+    ok = rw_trace:end_task(),
+    Result.
 
 %% The entity handles Msg; its effects are carried out, and a call's answer
 %% goes back to it.
@@ -182,18 +192,18 @@ perform([Effect | Rest], Phase, D) ->
 
 effect({send, To, Msg}, D) ->
     maybe_delay(D),
-    To ! Msg,
-    ok;
+    rw_trace:send(To, Msg);
 effect({watch, PIdx, Lvt}, #data{sim = #sim{owners = Owners}} = D) ->
     [{_, Pid}] = ets:lookup(Owners, PIdx),
     maybe_delay(D),
-    Pid ! {watch, self(), Lvt},
-    ok;
+    rw_trace:send(Pid, {watch, self(), Lvt});
 effect({publish_lvt, Idxs, Lvt}, #data{sim = #sim{lvts = Lvts}}) ->
     publish(Idxs, Lvts, Lvt);
 effect({commit, T, Records}, #data{sim = #sim{profile = false} = Sim}) ->
+    ok = rw_trace:committed(T),
     rw_commits:commit(Sim, T, Records);
 effect({commit, T, Records}, #data{sim = Sim}) ->
+    ok = rw_trace:committed(T),
     profiled(Sim, gvt_reductions, fun() -> rw_commits:commit(Sim, T, Records) end);
 effect({withdraw, Times, Idxs}, #data{sim = Sim}) ->
     rw_commits:withdraw(Sim, Times, Idxs);

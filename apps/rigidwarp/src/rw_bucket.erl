@@ -14,7 +14,7 @@
 -module(rw_bucket).
 -behaviour(gen_server).
 -include("rigidwarp.hrl").
--export([start_link/3, lock_probe/4, commit_unlock/4, probe_commit/5, lock_delete/5, unlock/2, gvt/2]).
+-export([start_link/3, start_link/4, lock_probe/4, commit_unlock/4, probe_commit/5, lock_delete/5, unlock/2, gvt/2]).
 -export([init/1, handle_call/3, handle_cast/2, handle_info/2]).
 
 -record(state, {
@@ -29,7 +29,11 @@
 
 %% Profile: the simulation's counters when its work is profiled.
 -spec start_link(#model{}, pos_integer(), rw_stats:counters() | undefined) -> {ok, pid()}.
-start_link(Model, Dt, Profile) -> gen_server:start_link(?MODULE, {Model, Dt, Profile}, []).
+start_link(Model, Dt, Profile) -> start_link(Model, Dt, Profile, undefined).
+
+%% ... recording its work into Trace (rw_trace).
+-spec start_link(#model{}, pos_integer(), rw_stats:counters() | undefined, ets:tid() | undefined) -> {ok, pid()}.
+start_link(Model, Dt, Profile, Trace) -> gen_server:start_link(?MODULE, {Model, Dt, Profile, Trace}, []).
 
 %% Lock Cells for the caller, then find the earliest LVT at which one of
 %% the written members touches another body: {T, Hits} or none. The caller
@@ -44,7 +48,7 @@ lock_probe(Bucket, Cells, {Owner, _, _, _} = Write, Spans) ->
 %% and unlock.
 -spec commit_unlock(pid(), pid(), non_neg_integer(), rw_cells:ids()) -> ok.
 commit_unlock(Bucket, Owner, UpTo, Ids) ->
-    gen_server:cast(Bucket, {commit_unlock, Owner, UpTo, Ids}).
+    cast(Bucket, {commit_unlock, Owner, UpTo, Ids}).
 
 %% lock_probe/4 and commit_unlock/4 in one call, for a write whose cells
 %% are all in this bucket: the states are stored up to the first LVT with
@@ -71,22 +75,42 @@ lock_delete(Bucket, Owner, Cells, Idxs, R) ->
 %% reference, which the runtime finds without scanning older messages.
 locked_call(Bucket, Req) ->
     Ref = make_ref(),
-    Bucket ! {'$rw_call', {self(), Ref}, Req},
-    receive {Ref, Reply} -> Reply end.
+    Call = {'$rw_call', {self(), Ref}, Req},
+    case rw_trace:table() of
+        undefined ->
+            Bucket ! Call,
+            receive {Ref, Reply} -> Reply end;
+        _ ->
+            %% traced: the caller's task ends with the call, and another
+            %% begins with the answer
+            ok = rw_trace:send(Bucket, Call),
+            ok = rw_trace:end_task(),
+            receive
+                {Ref, Reply} = Answer ->
+                    ok = rw_trace:begin_task(body, Answer),
+                    Reply
+            end
+    end.
 
-reply({Pid, Ref}, Reply) -> Pid ! {Ref, Reply}, ok.
+reply({Pid, Ref}, Reply) -> rw_trace:send(Pid, {Ref, Reply}).
+
+cast(Bucket, Msg) ->
+    ok = rw_trace:sent(Bucket, Msg),
+    gen_server:cast(Bucket, Msg).
 
 -spec unlock(pid(), pid()) -> ok.
-unlock(Bucket, Owner) -> gen_server:cast(Bucket, {unlock, Owner}).
+unlock(Bucket, Owner) -> cast(Bucket, {unlock, Owner}).
 
 %% Nothing before GVT can change any more: forget it (now and then).
 -spec gvt(pid(), non_neg_integer()) -> ok.
-gvt(Bucket, Gvt) -> gen_server:cast(Bucket, {gvt, Gvt}).
+gvt(Bucket, Gvt) -> cast(Bucket, {gvt, Gvt}).
 
 %%% gen_server
 
--spec init({#model{}, pos_integer(), rw_stats:counters() | undefined}) -> {ok, #state{}}.
-init({Model, Dt, Profile}) -> {ok, #state{cells = rw_cells:new(Model, Dt), profile = Profile}}.
+-spec init({#model{}, pos_integer(), rw_stats:counters() | undefined, ets:tid() | undefined}) -> {ok, #state{}}.
+init({Model, Dt, Profile, Trace}) ->
+    ok = rw_trace:init(Trace),
+    {ok, #state{cells = rw_cells:new(Model, Dt), profile = Profile}}.
 
 -spec handle_call(term(), gen_server:from(), #state{}) -> {reply, term(), #state{}}.
 handle_call(Req, _From, S) ->
@@ -94,21 +118,32 @@ handle_call(Req, _From, S) ->
     {reply, {error, unexpected}, S}.
 
 -spec handle_cast(term(), #state{}) -> {noreply, #state{}}.
-handle_cast(Msg, #state{profile = undefined} = S) -> {noreply, cast(Msg, S)};
-handle_cast(Msg, #state{profile = Stats} = S) -> {noreply, rw_stats:timed(Stats, tvht_reductions, fun() -> cast(Msg, S) end)}.
+handle_cast(Msg, S) ->
+    ok = rw_trace:begin_task(bucket, Msg),
+    S1 = case S of
+             #state{profile = undefined} -> handle(Msg, S);
+             #state{profile = Stats} -> rw_stats:timed(Stats, tvht_reductions, fun() -> handle(Msg, S) end)
+         end,
+    ok = rw_trace:end_task(),
+    {noreply, S1}.
 
-cast({commit_unlock, Owner, UpTo, Ids}, #state{probes = Probes, cells = Cells} = S) ->
+handle({commit_unlock, Owner, UpTo, Ids}, #state{probes = Probes, cells = Cells} = S) ->
     {{Write, Spans, Result}, Probes1} = maps:take(Owner, Probes),
     release(Owner, S#state{probes = Probes1, cells = rw_cells:store(Owner, Write, Spans, Result, UpTo, Ids, Cells)});
-cast({unlock, Owner}, S) ->
+handle({unlock, Owner}, S) ->
     release(Owner, S);
-cast({gvt, Gvt}, #state{cells = Cells} = S) ->
+handle({gvt, Gvt}, #state{cells = Cells} = S) ->
     S#state{cells = rw_cells:gc(Gvt, Cells)}.
 
 -spec handle_info(term(), #state{}) -> {noreply, #state{}}.
-handle_info({'$rw_call', From, Req}, #state{profile = undefined} = S) -> {noreply, call(Req, From, S)};
-handle_info({'$rw_call', From, Req}, #state{profile = Stats} = S) ->
-    {noreply, rw_stats:timed(Stats, tvht_reductions, fun() -> call(Req, From, S) end)};
+handle_info({'$rw_call', From, Req} = Msg, S) ->
+    ok = rw_trace:begin_task(bucket, Msg),
+    S1 = case S of
+             #state{profile = undefined} -> call(Req, From, S);
+             #state{profile = Stats} -> rw_stats:timed(Stats, tvht_reductions, fun() -> call(Req, From, S) end)
+         end,
+    ok = rw_trace:end_task(),
+    {noreply, S1};
 handle_info(Msg, S) ->
     logger:warning("rw_bucket ~p: unexpected message ~p", [self(), Msg]),
     {noreply, S}.

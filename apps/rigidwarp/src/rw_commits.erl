@@ -21,7 +21,7 @@
 commit(#sim{records = Records, counts = Counts, n = N, gvt = Gvt}, T, Rows) ->
     true = ets:insert(Records, Rows),
     case ets:update_counter(Counts, T, {2, length(Rows)}, {T, 0, 0}) of
-        N -> Gvt ! {complete, T}, ok;
+        N -> rw_trace:send(Gvt, {complete, T});
         _ -> ok
     end.
 

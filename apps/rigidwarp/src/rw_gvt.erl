@@ -86,15 +86,11 @@ send_frames(Gvt) -> gen_server:cast(Gvt, send_frames).
 
 %% Send {gvt, G} to Pid once GVT G >= At (at once if it is already).
 -spec wake_at(pid(), pid(), integer()) -> ok.
-wake_at(Gvt, Pid, At) ->
-    Gvt ! {wake_at, Pid, At},
-    ok.
+wake_at(Gvt, Pid, At) -> rw_trace:send(Gvt, {wake_at, Pid, At}).
 
 %% Entity Pid has stopped at regroup point S.
 -spec regroup_ack(pid(), pid(), non_neg_integer()) -> ok.
-regroup_ack(Gvt, Pid, S) ->
-    Gvt ! {regroup_ack, S, Pid},
-    ok.
+regroup_ack(Gvt, Pid, S) -> rw_trace:send(Gvt, {regroup_ack, S, Pid}).
 
 %% On several nodes: the GVT process of every site (by the site's number),
 %% the site of every body idx and the site GVT process of every body
@@ -113,6 +109,7 @@ init({#sim{scene = #scene{spheres = Spheres, model = #model{gravity = Gravity}},
     %% frames, at most 2M words (16 MiB), past which a heap costs more in
     %% cache misses than it saves in collections.
     _ = process_flag(min_heap_size, min(2048 * N, 1 bsl 21)),
+    ok = rw_trace:init(Sim#sim.trace),
     ok = rw_ring:init(Ring, Records, N),
     Idxs = lists:sort([I || #sphere{idx = I} <- Spheres]),
     Every = maps:get(checkpoint_ms, Opts, ?CHECKPOINT_MS),
@@ -136,29 +133,36 @@ handle_cast(send_frames, S) -> {noreply, S#s{frames = true}};
 handle_cast(_Msg, S) -> {noreply, S}.
 
 -spec handle_info(term(), #s{}) -> {noreply, #s{}}.
-handle_info({complete, T}, #s{complete = C, sim = #sim{profile = false}} = S) ->
+handle_info(Msg, #s{sim = #sim{trace = undefined}} = S) -> info(Msg, S);
+handle_info(Msg, S) ->
+    ok = rw_trace:begin_task(gvt, Msg),
+    Result = info(Msg, S),
+    ok = rw_trace:end_task(),
+    Result.
+
+info({complete, T}, #s{complete = C, sim = #sim{profile = false}} = S) ->
     {noreply, advance(S#s{complete = more_complete(C#{T => true})})};
-handle_info({complete, T}, #s{complete = C, sim = #sim{stats = Stats}} = S) ->
+info({complete, T}, #s{complete = C, sim = #sim{stats = Stats}} = S) ->
     {noreply, rw_stats:timed(Stats, gvt_reductions, fun() -> advance(S#s{complete = more_complete(C#{T => true})}) end)};
-handle_info({site_complete, Site, Whole}, #s{multi = M} = S) ->
+info({site_complete, Site, Whole}, #s{multi = M} = S) ->
     Reported = lists:foldl(fun({T, W}, R) -> maps:update_with(T, fun(By) -> By#{Site => W} end, #{Site => W}, R) end,
                            M#m.reported, Whole),
     {noreply, advance(S#s{multi = M#m{reported = Reported}})};
-handle_info({confirmed, Ref, Site, Confirmed, Rest, Records, Met}, #s{multi = #m{confirming = {Ref, _, _, _}}} = S) ->
+info({confirmed, Ref, Site, Confirmed, Rest, Records, Met}, #s{multi = #m{confirming = {Ref, _, _, _}}} = S) ->
     {noreply, confirmed(Site, Confirmed, Rest, Records, Met, S)};
-handle_info({regroup_ack, At, Pid}, #s{unready = U} = S) ->
+info({regroup_ack, At, Pid}, #s{unready = U} = S) ->
     Left = lists:delete(Pid, maps:get(At, U)),
     S1 = case Left of
              [] -> S#s{unready = maps:remove(At, U)};
              _ -> S#s{unready = U#{At := Left}}
          end,
     {noreply, advance(S1)};
-handle_info({wake_at, Pid, At}, #s{gvt = G} = S) when At =< G ->
-    Pid ! {gvt, G},
+info({wake_at, Pid, At}, #s{gvt = G} = S) when At =< G ->
+    ok = rw_trace:send(Pid, {gvt, G}),
     {noreply, S};
-handle_info({wake_at, Pid, At}, #s{waiting = W} = S) ->
+info({wake_at, Pid, At}, #s{waiting = W} = S) ->
     {noreply, S#s{waiting = rw_wakeups:add(At, Pid, W)}};
-handle_info(Msg, S) ->
+info(Msg, S) ->
     logger:warning("rw_gvt: unexpected message ~p", [Msg]),
     {noreply, S}.
 
@@ -169,7 +173,9 @@ ms(T, #s{sim = #sim{scene = Scene}}) -> rw_scene:ms(Scene, T).
 %% at once and entities and buckets hear of the last one only.
 more_complete(C) ->
     receive
-        {complete, T} -> more_complete(C#{T => true})
+        {complete, T} = Msg ->
+            ok = rw_trace:received(Msg),
+            more_complete(C#{T => true})
     after 0 -> C
     end.
 
@@ -184,6 +190,7 @@ advance(#s{gvt = G0} = S) ->
     #s{gvt = G, sim = #sim{end_t = End} = Sim, passed = Passed} = S1 = advance_over(S),
     case G > G0 of
         true ->
+            ok = rw_trace:committed(G),
             ok = atomics:put(Sim#sim.gvt_now, 1, G),
             [rw_bucket:gvt(B, G) || B <- tuple_to_list(Sim#sim.buckets)],
             S2 = lists:foldl(fun finish/2, S1#s{waiting = rw_wakeups:wake(G, S1#s.waiting), passed = []},
@@ -310,7 +317,7 @@ records_here(X, #s{multi = #m{have = Have}}) -> maps:is_key(X, Have).
 %% On one node regroup moves go to their entities at once; on several, to
 %% the entities' sites with the next GVT.
 tell(Moves, #s{multi = none} = S) ->
-    _ = [Pid ! Msg || {Pid, Msg} <- Moves],
+    _ = [rw_trace:send(Pid, Msg) || {Pid, Msg} <- Moves],
     S;
 tell(Moves, #s{multi = M} = S) ->
     S#s{multi = M#m{moves = M#m.moves ++ Moves}}.

@@ -43,7 +43,7 @@
 -define(DEFAULT_RESTART_PERIOD_MS, 10000).
 %% The options the simulation's tree takes.
 -define(SIM_KEYS, [groups, group_max, regroup_every, grouping, profile, delay, watchdog_ms, ring_size,
-                   checkpoint_ms]).
+                   checkpoint_ms, trace]).
 
 -record(r, {
     scene :: #scene{},                        % from the run's first start time

@@ -17,6 +17,7 @@
                      %% all bodies near each other however they move
                      regroup_every => pos_integer(), grouping => persistent | eager,
                      profile => boolean(), delay => {Seed :: integer(), MaxMs :: non_neg_integer()},
+                     trace => ets:tid(),
                      atom() => term()}.
 
 %% The most bodies the engine steps as one contact group, by default: a
@@ -40,7 +41,8 @@ new(#scene{spheres = Spheres, duration = End, frame = Frame, stride = Stride, st
          met = Met, stats = Stats, profile = maps:get(profile, Opts, false),
          lvts = lvts(Spheres, Start),
          gvt_now = gvt_now(), group_max = maps:get(group_max, Opts, ?DEFAULT_GROUP_MAX),
-         grouping = maps:get(grouping, Opts, persistent), delay = maps:get(delay, Opts, none)}.
+         grouping = maps:get(grouping, Opts, persistent), delay = maps:get(delay, Opts, none),
+         trace = maps:get(trace, Opts, undefined)}.
 
 %% Every body's LVT, at its start time until it publishes another.
 lvts(Spheres, Start) ->

@@ -6,7 +6,7 @@
 -module(rw_sim_parts).
 -behaviour(supervisor).
 -include("rigidwarp.hrl").
--export([worker/3, bucket_pool/4, body_pool/0, start_bodies/3, stop/1, init/1]).
+-export([worker/3, bucket_pool/4, bucket_pool/5, body_pool/0, start_bodies/3, stop/1, init/1]).
 
 %% Start a body for each {Sphere, State}: [{Idx, Id, Pid}].
 -spec start_bodies(pid(), #sim{}, [{#sphere{}, #st{}}]) -> [{non_neg_integer(), binary(), pid()}].
@@ -33,9 +33,14 @@ stop(Sup) ->
 
 %% The child spec of a pool of N buckets.
 -spec bucket_pool(#model{}, pos_integer(), pos_integer(), rw_stats:counters() | undefined) -> supervisor:child_spec().
-bucket_pool(M, Dt, N, Profile) ->
+bucket_pool(M, Dt, N, Profile) -> bucket_pool(M, Dt, N, Profile, undefined).
+
+%% ... whose work is recorded into Trace (rw_trace).
+-spec bucket_pool(#model{}, pos_integer(), pos_integer(), rw_stats:counters() | undefined, ets:tid() | undefined) ->
+          supervisor:child_spec().
+bucket_pool(M, Dt, N, Profile, Trace) ->
     #{id => buckets, type => supervisor, restart => permanent,
-      start => {supervisor, start_link, [?MODULE, {buckets, M, Dt, N, Profile}]}}.
+      start => {supervisor, start_link, [?MODULE, {buckets, M, Dt, N, Profile, Trace}]}}.
 
 %% The child spec of the bodies' supervisor.
 -spec body_pool() -> supervisor:child_spec().
@@ -47,13 +52,14 @@ body_pool() ->
 worker(Id, Mod, Args) ->
     #{id => Id, start => {Mod, start_link, Args}, restart => permanent, shutdown => 1000, type => worker}.
 
--spec init(sim | {buckets, #model{}, pos_integer(), pos_integer(), rw_stats:counters() | undefined} | bodies) ->
+-spec init(sim | {buckets, #model{}, pos_integer(), pos_integer(), rw_stats:counters() | undefined,
+                  ets:tid() | undefined} | bodies) ->
           {ok, {supervisor:sup_flags(), [supervisor:child_spec()]}}.
 init(sim) ->
     {ok, {#{strategy => rest_for_one, intensity => 0, period => 1}, []}};
-init({buckets, M, Dt, N, Profile}) ->
+init({buckets, M, Dt, N, Profile, Trace}) ->
     {ok, {#{strategy => one_for_all, intensity => 0, period => 1},
-          [#{id => {bucket, I}, start => {rw_bucket, start_link, [M, Dt, Profile]}, restart => permanent,
+          [#{id => {bucket, I}, start => {rw_bucket, start_link, [M, Dt, Profile, Trace]}, restart => permanent,
              shutdown => 1000} || I <- lists:seq(0, N - 1)]}};
 init(bodies) ->
     {ok, {#{strategy => simple_one_for_one, intensity => 0, period => 1},

@@ -18,6 +18,8 @@
                      %% all bodies near each other however they move
                      regroup_every => pos_integer(), grouping => persistent | eager,
                      watchdog_ms => pos_integer(), ring_size => pos_integer(), profile => boolean(),
+                     %% record the run's tasks into this table (rw_trace), on one node
+                     trace => ets:tid(),
                      delay => {Seed :: integer(), MaxMs :: non_neg_integer()},
                      max_restarts => non_neg_integer(), restart_period_ms => pos_integer(),
                      checkpoint_ms => non_neg_integer(), from => rw_reference:checkpoint(),
@@ -26,7 +28,7 @@
                      on_progress => fun((map()) -> any())}.
 
 -define(RUN_KEYS, [buckets, schedulers, nodes, migrate, groups, group_max, regroup_every, grouping, watchdog_ms, ring_size, profile,
-                   delay, max_restarts, restart_period_ms, checkpoint_ms, from]).
+                   trace, delay, max_restarts, restart_period_ms, checkpoint_ms, from]).
 
 %% Start a simulation; it runs on its own until the scene's end.
 -spec start(#scene{}, options()) -> {ok, handle()} | {error, term()}.

@@ -21,6 +21,6 @@ add(At, Pid, Later) -> [{At, [Pid]} | Later].
 %% others still wait.
 -spec wake(integer(), wakeups()) -> wakeups().
 wake(G, [{At, Pids} | Rest]) when At =< G ->
-    _ = [Pid ! {gvt, G} || Pid <- Pids],
+    _ = [rw_trace:send(Pid, {gvt, G}) || Pid <- Pids],
     wake(G, Rest);
 wake(_G, Waiting) -> Waiting.

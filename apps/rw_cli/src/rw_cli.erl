@@ -86,6 +86,20 @@
                              two processes doing allocation-heavy Erlang work (as the engine's
                              bodies do) on 1 and then 2 schedulers, N alternating pairs
                              (default 3); one JSON line (the 2-core floor is judged against it)
+  bench parallelism [SCENE...] [--until MS] [--repeats N]
+                             how the scenes' work would spread over more cores: one run on one
+                             scheduler records every task with its cost and dependencies, then
+                             the total work, the critical path, the average parallelism and a
+                             list schedule's speedup on 2, 4, 8, 16 and 64 cores; beside them the
+                             1 -> 2 scheduler speedup measured here (N alternating pairs, default
+                             3, median). A markdown table, then one JSON line. Default scenes: the
+                             paper's eight and pile_300, heap_500, stack_1000; --until default 1000
+  bench scale [--counts N,N,...] [--until MS]
+                             the cost of a body-substep as scenes grow: gases at Bouncing 500's
+                             density of 500, 2000, 5000, 10000 and 20000 spheres (default), each
+                             run on every scheduler to MS (default 500): body-substeps per second,
+                             over the run and once every body runs, and memory per body at a
+                             quarter, half way and the end. A markdown table, then one JSON line
 ").
 -define(VERSION_HELP,
 "  version, --version         the rigidwarp version and the Erlang/OTP release it runs on

@@ -3,6 +3,8 @@
 %% a table, written as CSV and drawn as a Pareto plot with gnuplot.
 %% `rigidwarp bench machine`: how well this machine itself scales from 1 to 2
 %% schedulers on work like the engine's, to read the engine's speedups against.
+%% `rigidwarp bench parallelism`: rw_cli_parallelism; `rigidwarp bench
+%% scale`: rw_cli_scale.
 -module(rw_cli_bench).
 -export([bench/1]).
 
@@ -16,8 +18,10 @@ bench(["accuracy" | Args]) -> accuracy(parse(Args, defaults()));
 bench(["machine"]) -> machine(3);
 bench(["machine", "--repeats", N]) -> machine(rw_cli_args:pos_int("--repeats", N));
 bench(["machine" | _]) -> throw({usage, "bench machine takes only --repeats N"});
-bench([]) -> throw({usage, "bench needs a benchmark: accuracy or machine"});
-bench([Other | _]) -> throw({usage, "unknown benchmark " ++ Other ++ " (known: accuracy, machine)"}).
+bench(["parallelism" | Args]) -> rw_cli_parallelism:bench(Args);
+bench(["scale" | Args]) -> rw_cli_scale:bench(Args);
+bench([]) -> throw({usage, "bench needs a benchmark: accuracy, machine, parallelism or scale"});
+bench([Other | _]) -> throw({usage, "unknown benchmark " ++ Other ++ " (known: accuracy, machine, parallelism, scale)"}).
 
 %%% The machine's own scaling (rw_machine)
 
