@@ -21,7 +21,12 @@
     cells :: rw_cells:cells(),
     locks = #{} :: #{rw_hash:cell() => pid()},
     held = #{} :: #{pid() => [rw_hash:cell()]},   % the same locks by owner
-    waiting = [] :: [{{pid(), reference()}, pid(), [rw_hash:cell()], term()}],
+    %% requests waiting for locks, by arrival, and by the cells they want:
+    %% when locks are dropped only the requests for those cells are looked
+    %% at again (every body of a large scene writes at once at its start)
+    waiting = #{} :: #{pos_integer() => {{pid(), reference()}, pid(), [rw_hash:cell()], term()}},
+    by_cell = #{} :: #{rw_hash:cell() => [pos_integer()]},
+    arrivals = 0 :: non_neg_integer(),
     probes = #{} :: #{pid() => {rw_cells:write(), [rw_cells:span()], {non_neg_integer(), [rw_cells:hit()]} | none}},
     %% when profiling: the simulation's counters
     profile :: rw_stats:counters() | undefined
@@ -155,7 +160,11 @@ call({lock, Owner, Cells, Op}, From, S) ->
             reply(From, Reply),
             S1;
         false ->
-            S#state{waiting = S#state.waiting ++ [{From, Owner, Cells, Op}]}
+            #state{waiting = W, by_cell = ByCell, arrivals = N} = S,
+            Seq = N + 1,
+            S#state{waiting = W#{Seq => {From, Owner, Cells, Op}}, arrivals = Seq,
+                    by_cell = lists:foldl(fun(C, B) -> maps:update_with(C, fun(L) -> [Seq | L] end, [Seq], B) end,
+                                          ByCell, lists:usort(Cells))}
     end.
 
 %%% Locks
@@ -170,8 +179,14 @@ take(Cells, Owner, #state{locks = Locks, held = Held} = S) ->
     S#state{locks = lists:foldl(fun(C, L) -> L#{C => Owner} end, Locks, Cells),
             held = Held#{Owner => Cells ++ maps:get(Owner, Held, [])}}.
 
-%% Drop Owner's locks and grant waiting requests that now fit, in order.
-release(Owner, S) -> grant(drop_locks(Owner, S)).
+%% Drop Owner's locks and grant the waiting requests for those cells that
+%% now fit, in order of arrival (a request waits only while one of its
+%% cells is locked by another, so none other can fit now).
+release(Owner, #state{locks = Locks, held = Held} = S) ->
+    case maps:take(Owner, Held) of
+        {Cells, Held1} -> grant(Cells, S#state{locks = maps:without(Cells, Locks), held = Held1});
+        error -> S
+    end.
 
 drop_locks(Owner, #state{locks = Locks, held = Held} = S) ->
     case maps:take(Owner, Held) of
@@ -179,18 +194,30 @@ drop_locks(Owner, #state{locks = Locks, held = Held} = S) ->
         error -> S
     end.
 
-grant(#state{waiting = []} = S) -> S;
-grant(#state{waiting = Waiting} = S) -> grant(Waiting, [], S).
+grant(_Released, #state{waiting = W} = S) when map_size(W) =:= 0 -> S;
+grant(Released, #state{by_cell = ByCell} = S) ->
+    lists:foldl(fun grant_one/2, S, lists:usort(lists:append([maps:get(C, ByCell, []) || C <- Released]))).
 
-grant([], Kept, S) -> S#state{waiting = lists:reverse(Kept)};
-grant([{From, Owner, Cells, Op} = W | Rest], Kept, S) ->
-    case free(Cells, Owner, S#state.locks) of
-        true ->
-            {Reply, S1} = locked_op(Owner, Op, take(Cells, Owner, S)),
-            reply(From, Reply),
-            grant(Rest, Kept, S1);
-        false ->
-            grant(Rest, [W | Kept], S)
+grant_one(Seq, #state{waiting = Waiting, by_cell = ByCell} = S) ->
+    case Waiting of
+        #{Seq := {From, Owner, Cells, Op}} ->
+            case free(Cells, Owner, S#state.locks) of
+                true ->
+                    Gone = lists:foldl(fun(C, B) ->
+                                               case lists:delete(Seq, maps:get(C, B)) of
+                                                   [] -> maps:remove(C, B);
+                                                   L -> B#{C := L}
+                                               end
+                                       end, ByCell, lists:usort(Cells)),
+                    {Reply, S1} = locked_op(Owner, Op, take(Cells, Owner,
+                                                            S#state{waiting = maps:remove(Seq, Waiting), by_cell = Gone})),
+                    reply(From, Reply),
+                    S1;
+                false ->
+                    S
+            end;
+        _ ->
+            S
     end.
 
 %%% Operations under lock
