@@ -98,8 +98,9 @@
                              the cost of a body-substep as scenes grow: gases at Bouncing 500's
                              density of 500, 2000, 5000, 10000 and 20000 spheres (default), each
                              run on every scheduler to MS (default 500): body-substeps per second,
-                             over the run and once every body runs, and memory per body at a
-                             quarter, half way and the end. A markdown table, then one JSON line
+                             over the run and once every body runs, and memory per body a
+                             quarter, half and three quarters of the way. A markdown table, then
+                             one JSON line
 ").
 -define(VERSION_HELP,
 "  version, --version         the rigidwarp version and the Erlang/OTP release it runs on

@@ -4,8 +4,8 @@
 %% up, each run on every scheduler for the same simulated time: body-
 %% substeps per second over the whole run and once every body is running
 %% (from a fifth of the simulated time on: starting thousands of processes
-%% and their first writes is a cost of its own), and the memory per body
-%% a quarter, half way and at the end of the run.
+%% and their first writes is a cost of its own), and the memory per body a
+%% quarter, half and three quarters of the way.
 -module(rw_cli_scale).
 -export([bench/1, scene/1]).
 
@@ -17,7 +17,7 @@
 bench(Args) ->
     #{counts := Counts, until := Until} = parse(Args, #{counts => ?COUNTS, until => 500}),
     io:put_chars(["| spheres | wall (ms) | body-substeps/s | once running | vs the first | "
-                  "memory per body at 1/4, 1/2, the end (KiB) |\n|---:|---:|---:|---:|---:|---|\n"]),
+                  "memory per body at 1/4, 1/2, 3/4 (KiB) |\n|---:|---:|---:|---:|---:|---|\n"]),
     Rows = lists:foldl(fun(N, Acc) -> Acc ++ [row(N, Until, Acc)] end, [], Counts),
     io:put_chars([jiffy:encode(#{until_ms => Until, density_per_m3 => ?DENSITY, counts => Rows,
                                  schedulers => erlang:system_info(schedulers)}), $\n]),
@@ -61,8 +61,7 @@ row(N, Until, Before) ->
     Running = N * Gs / max(1, Ts) * 1000,
     PerBody = fun(M) -> (M - Base) / N / 1024 end,
     At = fun(G0) -> case [M || {_, G, M} <- Samples, G >= G0] of [M1 | _] -> PerBody(M1); [] -> 0.0 end end,
-    {Quarter, Mid} = {At(Until div 4), At(Until div 2)},
-    End = case Samples of [] -> 0.0; _ -> PerBody(element(3, lists:last(Samples))) end,
+    {Quarter, Mid, End} = {At(Until div 4), At(Until div 2), At(3 * Until div 4)},
     Vs = case Before of [] -> 1.0; [#{running_per_s := R0} | _] -> Running / R0 end,
     io:format("| ~b | ~b | ~.3g | ~.3g | ~.2f | ~.1f / ~.1f / ~.1f |~n", [N, Wall, Rate, Running, Vs, Quarter, Mid, End]),
     #{spheres => N, wall_ms => Wall, body_substeps_per_s => Rate, running_per_s => Running, vs_first => Vs,
