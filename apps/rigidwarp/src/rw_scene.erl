@@ -499,19 +499,19 @@ random_spheres(G, P) ->
      || {A, B} <- lists:zip(tuple_to_list(Lo), tuple_to_list(Hi)), B - A < 2.0 * R],
     Width = length(integer_to_list(N - 1)),
     Rand = rand:seed_s(exsss, Seed),
-    Placed = place(N, R, Lo, Hi, Rand, #{}, [], 0, P),
+    Placed = place(N, N, R, Lo, Hi, Rand, #{}, [], 0, P),
     [{sphere, gen_id(Prefix, Seq, Width), R, M,
       #st{p = Pos, v = rw_vec:add(V0, rw_vec:scale(Dir, Mag * Speed))}, P}
      || {Seq, {Pos, Dir, Mag}} <- enumerate(Placed)].
 
 %% Rejection sampling: positions uniform in the region shrunk by R, kept
-%% when they touch no sphere placed before.
-place(0, _R, _Lo, _Hi, _Rand, _Grid, Acc, _Tries, _P) ->
+%% when they touch no sphere placed before; N of Total left to place.
+place(0, _Total, _R, _Lo, _Hi, _Rand, _Grid, Acc, _Tries, _P) ->
     lists:reverse(Acc);
-place(N, R, Lo, Hi, Rand0, Grid, Acc, Tries, P) ->
-    Tries < 1000 * (length(Acc) + N) orelse
+place(N, Total, R, Lo, Hi, Rand0, Grid, Acc, Tries, P) ->
+    Tries < 1000 * Total orelse
         invalid(P ++ [<<"count">>], "cannot place ~b spheres of radius ~g without overlap in the region",
-                [length(Acc) + N, R]),
+                [Total, R]),
     {Pos, Rand1} = uniform_vec(rw_vec:add(Lo, {R, R, R}), rw_vec:sub(Hi, {R, R, R}), Rand0),
     {Dir, Mag, Rand2} = random_direction(Rand1),
     Cell = rw_hash:cell_of(Pos, 2.0 * R),
@@ -519,8 +519,8 @@ place(N, R, Lo, Hi, Rand0, Grid, Acc, Tries, P) ->
     Near = lists:append([maps:get({CX + I, CY + J, CZ + K}, Grid, [])
                          || I <- [-1, 0, 1], J <- [-1, 0, 1], K <- [-1, 0, 1]]),
     case lists:any(fun(Q) -> rw_vec:len2(rw_vec:sub(Q, Pos)) < 4.0 * R * R end, Near) of
-        true -> place(N, R, Lo, Hi, Rand2, Grid, Acc, Tries + 1, P);
-        false -> place(N - 1, R, Lo, Hi, Rand2, maps:update_with(Cell, fun(L) -> [Pos | L] end, [Pos], Grid),
+        true -> place(N, Total, R, Lo, Hi, Rand2, Grid, Acc, Tries + 1, P);
+        false -> place(N - 1, Total, R, Lo, Hi, Rand2, maps:update_with(Cell, fun(L) -> [Pos | L] end, [Pos], Grid),
                        [{Pos, Dir, Mag} | Acc], Tries + 1, P)
     end.
 
