@@ -150,11 +150,7 @@ drain_more(Msg, D) ->
 %% Msg handled, as one task when the simulation is traced (rw_trace): a
 %% step is begun by the process itself.
 task(Msg, #data{sim = #sim{trace = undefined}} = D) -> feed(Msg, D);
-task(Msg, D) ->
-    ok = rw_trace:begin_task(body, case Msg of {step, _, _} -> none; _ -> Msg end),
-    Result = feed(Msg, D),
-    ok = rw_trace:end_task(),
-    Result.
+task(Msg, D) -> rw_trace:task(body, case Msg of {step, _, _} -> none; _ -> Msg end, fun() -> feed(Msg, D) end).
 
 %% The entity handles Msg; its effects are carried out, and a call's answer
 %% goes back to it.

@@ -123,14 +123,7 @@ handle_call(Req, _From, S) ->
     {reply, {error, unexpected}, S}.
 
 -spec handle_cast(term(), #state{}) -> {noreply, #state{}}.
-handle_cast(Msg, S) ->
-    ok = rw_trace:begin_task(bucket, Msg),
-    S1 = case S of
-             #state{profile = undefined} -> handle(Msg, S);
-             #state{profile = Stats} -> rw_stats:timed(Stats, tvht_reductions, fun() -> handle(Msg, S) end)
-         end,
-    ok = rw_trace:end_task(),
-    {noreply, S1}.
+handle_cast(Msg, S) -> {noreply, instrumented(Msg, fun() -> handle(Msg, S) end, S)}.
 
 handle({commit_unlock, Owner, UpTo, Ids}, #state{probes = Probes, cells = Cells} = S) ->
     {{Write, Spans, Result}, Probes1} = maps:take(Owner, Probes),
@@ -141,17 +134,16 @@ handle({gvt, Gvt}, #state{cells = Cells} = S) ->
     S#state{cells = rw_cells:gc(Gvt, Cells)}.
 
 -spec handle_info(term(), #state{}) -> {noreply, #state{}}.
-handle_info({'$rw_call', From, Req} = Msg, S) ->
-    ok = rw_trace:begin_task(bucket, Msg),
-    S1 = case S of
-             #state{profile = undefined} -> call(Req, From, S);
-             #state{profile = Stats} -> rw_stats:timed(Stats, tvht_reductions, fun() -> call(Req, From, S) end)
-         end,
-    ok = rw_trace:end_task(),
-    {noreply, S1};
+handle_info({'$rw_call', From, Req} = Msg, S) -> {noreply, instrumented(Msg, fun() -> call(Req, From, S) end, S)};
 handle_info(Msg, S) ->
     logger:warning("rw_bucket ~p: unexpected message ~p", [self(), Msg]),
     {noreply, S}.
+
+%% Handle Msg by Fun: counted when the simulation is profiled, a task when
+%% it is traced.
+instrumented(Msg, Fun, #state{profile = undefined}) -> rw_trace:task(bucket, Msg, Fun);
+instrumented(Msg, Fun, #state{profile = Stats}) ->
+    rw_trace:task(bucket, Msg, fun() -> rw_stats:timed(Stats, tvht_reductions, Fun) end).
 
 call({lock, Owner, Cells, Op}, From, S) ->
     case free(Cells, Owner, S#state.locks) of
@@ -182,16 +174,15 @@ take(Cells, Owner, #state{locks = Locks, held = Held} = S) ->
 %% Drop Owner's locks and grant the waiting requests for those cells that
 %% now fit, in order of arrival (a request waits only while one of its
 %% cells is locked by another, so none other can fit now).
-release(Owner, #state{locks = Locks, held = Held} = S) ->
-    case maps:take(Owner, Held) of
-        {Cells, Held1} -> grant(Cells, S#state{locks = maps:without(Cells, Locks), held = Held1});
-        error -> S
-    end.
+release(Owner, S) ->
+    {Cells, S1} = drop_locks(Owner, S),
+    grant(Cells, S1).
 
+%% Owner's locks dropped, and the cells they were on.
 drop_locks(Owner, #state{locks = Locks, held = Held} = S) ->
     case maps:take(Owner, Held) of
-        {Cells, Held1} -> S#state{locks = maps:without(Cells, Locks), held = Held1};
-        error -> S
+        {Cells, Held1} -> {Cells, S#state{locks = maps:without(Cells, Locks), held = Held1}};
+        error -> {[], S}
     end.
 
 grant(_Released, #state{waiting = W} = S) when map_size(W) =:= 0 -> S;
@@ -237,7 +228,8 @@ locked_op(Owner, {probe_commit, Write, Spans, Last}, #state{cells = Cells} = S) 
     %% The cells were free when this call took them, so freeing them again
     %% changes nothing for the requests still waiting (and granting here
     %% would re-enter grant/3, which may be running this very call).
-    {{UpTo, Hits, Ids}, drop_locks(Owner, S1)};
+    {_, S2} = drop_locks(Owner, S1),
+    {{UpTo, Hits, Ids}, S2};
 locked_op(Owner, {delete, Idxs, R, Owned}, #state{cells = Cells} = S) ->
     {Lost, Cells1} = rw_cells:delete(Owner, Idxs, R, Owned, Cells),
     {Lost, S#state{cells = Cells1}}.

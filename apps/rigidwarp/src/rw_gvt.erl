@@ -134,11 +134,7 @@ handle_cast(_Msg, S) -> {noreply, S}.
 
 -spec handle_info(term(), #s{}) -> {noreply, #s{}}.
 handle_info(Msg, #s{sim = #sim{trace = undefined}} = S) -> info(Msg, S);
-handle_info(Msg, S) ->
-    ok = rw_trace:begin_task(gvt, Msg),
-    Result = info(Msg, S),
-    ok = rw_trace:end_task(),
-    Result.
+handle_info(Msg, S) -> rw_trace:task(gvt, Msg, fun() -> info(Msg, S) end).
 
 info({complete, T}, #s{complete = C, sim = #sim{profile = false}} = S) ->
     {noreply, advance(S#s{complete = more_complete(C#{T => true})})};

@@ -17,7 +17,7 @@
 %% same work would be done on P cores: Time Warp on more cores computes
 %% optimistically further and rolls back more, which it does not see.
 -module(rw_parallelism).
--export([analyze/2, schedule/2, critical/1]).
+-export([analyze/2]).
 -export_type([summary/0]).
 
 -type summary() :: #{tasks := non_neg_integer(), work := non_neg_integer(), critical_path := non_neg_integer(),

@@ -112,7 +112,8 @@ plan(Bodies, Old, Max, Met) -> plan(Bodies, Old, Max, Met, false).
 plan(Bodies, Old, Max, Met, Landing) ->
     %% (a body alone that met nobody stays alone, unless it is landing on
     %% a group: only the others can have an edge)
-    {Stay, Join} = edges(candidates(Bodies, Old, Met, Landing), Old, Met, Landing),
+    Grouped = grouped(Old),
+    {Stay, Join} = edges(candidates(Bodies, Grouped, Met, Landing), Old, Grouped, Met, Landing),
     %% union-find over the bodies with an edge (any other is its own root)
     Uf1 = lists:foldl(fun({A, B}, U) -> union(A, B, Max, U) end, #{}, Stay),
     Uf = lists:foldl(fun({_, {A, B}}, U) -> union(A, B, Max, U) end, Uf1, lists:sort(Join)),
@@ -147,15 +148,18 @@ moves(Old, New, Pids) ->
 
 %%% Internals
 
-candidates(Bodies, _Old, eager, _Landing) -> Bodies;
-candidates(Bodies, Old, Met, Landing) ->
-    InGroup = maps:fold(fun(I, L, Acc) when I =/= L -> Acc#{I => true, L => true};
-                           (_, _, Acc) -> Acc
-                        end, #{}, Old),
-    case Landing andalso map_size(InGroup) > 0 of
+%% The bodies in a group of two or more, as a set.
+grouped(Old) ->
+    maps:fold(fun(I, L, Acc) when I =/= L -> Acc#{I => true, L => true};
+                 (_, _, Acc) -> Acc
+              end, #{}, Old).
+
+candidates(Bodies, _Grouped, eager, _Landing) -> Bodies;
+candidates(Bodies, Grouped, Met, Landing) ->
+    case Landing andalso map_size(Grouped) > 0 of
         true -> Bodies;
         false ->
-            Seen = maps:fold(fun({A, B}, _, Acc) -> Acc#{A => true, B => true} end, InGroup, Met),
+            Seen = maps:fold(fun({A, B}, _, Acc) -> Acc#{A => true, B => true} end, Grouped, Met),
             [B || {I, _, _, _} = B <- Bodies, is_map_key(I, Seen)]
     end.
 
@@ -171,13 +175,11 @@ is_group([L | _] = G, Groups) -> maps:get(L, Groups, none) =:= G.
 %% or with Landing a body closing in on a group's member (a sphere landing
 %% on a pile joins it before it touches, instead of meeting the group at
 %% every substep until it has met it often enough).
-edges(Bodies, Old, Met, Landing) ->
+edges(Bodies, Old, Grouped0, Met, Landing) ->
     Reach = case Met of eager -> ?EAGER; _ -> ?NEAR end,
     Grouped = case Met =/= eager andalso Landing of
                   false -> #{};
-                  true -> maps:fold(fun(I, L, Acc) when I =/= L -> Acc#{I => true, L => true};
-                                       (_, _, Acc) -> Acc
-                                    end, #{}, Old)
+                  true -> Grouped0
               end,
     Motion = case map_size(Grouped) of
                  0 -> #{};

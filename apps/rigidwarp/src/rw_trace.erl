@@ -17,7 +17,7 @@
 %% code paths stay the same without it. Without a table, every call here
 %% does nothing.
 -module(rw_trace).
--export([init/1, table/0, begin_task/2, end_task/0, send/2, sent/2, received/1, committed/1, key/2]).
+-export([init/1, table/0, task/3, begin_task/2, end_task/0, send/2, sent/2, received/1, committed/1, key/2]).
 -export_type([task/0, key/0]).
 
 -define(TAB, '$rw_trace_tab').
@@ -41,6 +41,19 @@ table() -> get(?TAB).
 
 -spec key(pid(), term()) -> key().
 key(To, Msg) -> {To, erlang:phash2(Msg)}.
+
+%% Fun() handling Msg (none: a timeout), as one task when this process is
+%% traced.
+-spec task(body | bucket | gvt, term(), fun(() -> R)) -> R.
+task(Kind, Msg, Fun) ->
+    case get(?TAB) of
+        undefined -> Fun();
+        _ ->
+            ok = begin_task(Kind, Msg),
+            Result = Fun(),
+            ok = end_task(),
+            Result
+    end.
 
 %% A task of this process begins, taking in Msg (none: a timeout).
 -spec begin_task(body | bucket | gvt, term()) -> ok.

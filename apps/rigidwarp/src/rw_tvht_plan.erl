@@ -24,12 +24,17 @@
 -spec write(term(), non_neg_integer(), tuple(), [rw_states:packed()], #model{}, {float(), pos_integer()},
             pos_integer() | rw_place:placement()) -> {rw_cells:write(), plan()}.
 write(Writer, T0, Spheres, Steps, #model{ccd = Ccd}, {CellSize, Dt}, NBuckets) ->
-    Members = [member_write(Writer, element(K, Spheres), T0, Packed, Ccd)
-               || {K, Packed} <- lists:zip(lists:seq(1, length(Steps)), Steps)],
-    Write = {Writer, T0, maps:from_list([{Idx, Payload} || {{Idx, _, _, _, _, _} = Payload, _} <- Members]),
-             union([Bounds || {{_, _, _, _, _, Bounds}, _} <- Members])},
+    {Members, Write} = members(Writer, T0, Spheres, Steps, Ccd),
     Plan = plan([{Idx, cell_spans(T0, Spans, CellSize, Dt)} || {{Idx, _, _, _, _, _}, Spans} <- Members], NBuckets),
     {Write, Plan}.
+
+%% Each member's payload with what cell_spans/4 needs, and the write of
+%% them all.
+members(Writer, T0, Spheres, Steps, Ccd) ->
+    Members = [member_write(Writer, element(K, Spheres), T0, Packed, Ccd)
+               || {K, Packed} <- lists:zip(lists:seq(1, length(Steps)), Steps)],
+    {Members, {Writer, T0, maps:from_list([{Idx, Payload} || {{Idx, _, _, _, _, _} = Payload, _} <- Members]),
+               union([Bounds || {{_, _, _, _, _, Bounds}, _} <- Members])}}.
 
 %% write/7 for a writer that writes again and again with its members in the
 %% same cells (bodies resting in a pile, a group in lock step with a
@@ -43,10 +48,7 @@ write(Writer, T0, Spheres, Steps, #model{ccd = Ccd}, {CellSize, Dt}, NBuckets) -
             pos_integer() | rw_place:placement(), cache()) -> {rw_cells:write(), plan(), cache()}.
 write(Writer, T0, Spheres, Steps, #model{ccd = false}, {CellSize, Dt}, NBuckets, Cache) ->
     [N | Counts] = [rw_states:count(Packed) || Packed <- Steps],
-    Members = [member_write(Writer, element(K, Spheres), T0, Packed, false)
-               || {K, Packed} <- lists:zip(lists:seq(1, length(Steps)), Steps)],
-    Write = {Writer, T0, maps:from_list([{Idx, Payload} || {{Idx, _, _, _, _, _} = Payload, _} <- Members]),
-             union([Bounds || {{_, _, _, _, _, Bounds}, _} <- Members])},
+    {Members, Write} = members(Writer, T0, Spheres, Steps, false),
     Shape = [{Idx, all_box(Extents, R, CellSize)} || {{Idx, _, _, _, _, _}, {_, Extents, R}} <- Members],
     Tb = T0 + (N - 1) * Dt,
     Even = lists:all(fun(C) -> C =:= N end, Counts),
@@ -153,9 +155,9 @@ extend(I, N, Packed, X0, Y0, Z0, X1, Y1, Z1) ->
 %% wider span adds candidates, never contacts). Otherwise (a fast body)
 %% cells are enumerated only when the box changes, and a box is hashed
 %% again only when it leaves the region that keeps its cells.
-cell_spans(T0, {Packed, {X0, Y0, Z0, X1, Y1, Z1}, R}, C, Dt) ->
+cell_spans(T0, {Packed, Extents, R}, C, Dt) ->
     Box = rw_hash:box(aabb(Packed, 1, R), C),
-    All = rw_hash:box({{X0 - R, Y0 - R, Z0 - R}, {X1 + R, Y1 + R, Z1 + R}}, C),
+    All = all_box(Extents, R, C),
     N = rw_states:count(Packed),
     case All =:= Box orelse rw_hash:box_size(All) =< 2 * rw_hash:box_size(Box) of
         true -> add_run(All, T0, T0 + (N - 1) * Dt, #{});
