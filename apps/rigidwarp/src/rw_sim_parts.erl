@@ -6,7 +6,7 @@
 -module(rw_sim_parts).
 -behaviour(supervisor).
 -include("rigidwarp.hrl").
--export([worker/3, bucket_pool/4, bucket_pool/5, body_pool/0, start_bodies/3, stop/1, init/1]).
+-export([worker/3, bucket_pool/4, bucket_pool/6, body_pool/0, start_bodies/3, stop/1, init/1]).
 
 %% Start a body for each {Sphere, State}: [{Idx, Id, Pid}].
 -spec start_bodies(pid(), #sim{}, [{#sphere{}, #st{}}]) -> [{non_neg_integer(), binary(), pid()}].
@@ -33,14 +33,23 @@ stop(Sup) ->
 
 %% The child spec of a pool of N buckets.
 -spec bucket_pool(#model{}, pos_integer(), pos_integer(), rw_stats:counters() | undefined) -> supervisor:child_spec().
-bucket_pool(M, Dt, N, Profile) -> bucket_pool(M, Dt, N, Profile, undefined).
+bucket_pool(M, Dt, N, Profile) -> bucket_pool(M, Dt, N, Profile, undefined, 0).
 
-%% ... whose work is recorded into Trace (rw_trace).
--spec bucket_pool(#model{}, pos_integer(), pos_integer(), rw_stats:counters() | undefined, ets:tid() | undefined) ->
-          supervisor:child_spec().
-bucket_pool(M, Dt, N, Profile, Trace) ->
+%% ... whose work is recorded into Trace (rw_trace), for a simulation of
+%% Bodies bodies (0: not known).
+-spec bucket_pool(#model{}, pos_integer(), pos_integer(), rw_stats:counters() | undefined, ets:tid() | undefined,
+                  non_neg_integer()) -> supervisor:child_spec().
+bucket_pool(M, Dt, N, Profile, Trace, Bodies) ->
     #{id => buckets, type => supervisor, restart => permanent,
-      start => {supervisor, start_link, [?MODULE, {buckets, M, Dt, N, Profile, Trace}]}}.
+      start => {supervisor, start_link, [?MODULE, {buckets, M, Dt, N, Profile, Trace, bucket_heap(Bodies, N)}]}}.
+
+%% A bucket keeps the segments of every body writing in its cells since
+%% GVT, and a heap sized to what survived its last collection copies them
+%% again and again: its heap never shrinks below 3200 words per body it
+%% holds on average, at most 1M words (8 MiB). (20,000 spheres ran 10-15 %
+%% faster with 1M words than with the default 233; 500 the same.)
+bucket_heap(Bodies, Buckets) -> max(233, min(1 bsl 20, 3200 * Bodies div Buckets)).
+
 
 %% The child spec of the bodies' supervisor.
 -spec body_pool() -> supervisor:child_spec().
@@ -57,9 +66,9 @@ worker(Id, Mod, Args) ->
           {ok, {supervisor:sup_flags(), [supervisor:child_spec()]}}.
 init(sim) ->
     {ok, {#{strategy => rest_for_one, intensity => 0, period => 1}, []}};
-init({buckets, M, Dt, N, Profile, Trace}) ->
+init({buckets, M, Dt, N, Profile, Trace, Heap}) ->
     {ok, {#{strategy => one_for_all, intensity => 0, period => 1},
-          [#{id => {bucket, I}, start => {rw_bucket, start_link, [M, Dt, Profile, Trace]}, restart => permanent,
+          [#{id => {bucket, I}, start => {rw_bucket, start_link, [M, Dt, Profile, Trace, Heap]}, restart => permanent,
              shutdown => 1000} || I <- lists:seq(0, N - 1)]}};
 init(bodies) ->
     {ok, {#{strategy => simple_one_for_one, intensity => 0, period => 1},

@@ -60,7 +60,8 @@ start_link(Scene, NBuckets, RunTables, Stats, Opts) ->
 one_node(Sup, #scene{model = M, substep = Dt, spheres = Spheres, initial = Initial} = Scene, NBuckets, Tables, Stats,
          Opts) ->
     Profile = case maps:get(profile, Opts, false) of true -> Stats; false -> undefined end,
-    {ok, BucketSup} = child(Sup, rw_sim_parts:bucket_pool(M, Dt, NBuckets, Profile, maps:get(trace, Opts, undefined))),
+    {ok, BucketSup} = child(Sup, rw_sim_parts:bucket_pool(M, Dt, NBuckets, Profile, maps:get(trace, Opts, undefined),
+                                                              length(Spheres))),
     Buckets = lists:sort([{I, P} || {{bucket, I}, P, _, _} <- supervisor:which_children(BucketSup)]),
     Sim0 = rw_sim:new(Scene, Tables, list_to_tuple([P || {_, P} <- Buckets]), Stats, Opts),
     {ok, Gvt} = child(Sup, rw_sim_parts:worker(gvt, rw_gvt, [Sim0, maps:with([run, frames, ring_size, checkpoint_ms], Opts)])),
