@@ -18,7 +18,6 @@
 -record(data, {
     sim :: #sim{},
     entity :: rw_entity:entity(),
-    heap :: pos_integer(),                      % the minimum heap of a body on its own (words)
     plans = none :: rw_tvht_plan:cache(),       % this entity's last TVHT plan, for its next write
     delay = 0 :: non_neg_integer()              % test hook: max pause (ms) before TVHT work and sends
 }).
@@ -65,8 +64,7 @@ init({#sim{scene = Scene, sync = Cal, owners = Owners, delay = Delay} = Sim, #sp
                 {Seed, Ms} -> _ = rand:seed(exsss, Seed + Idx), Ms;
                 none -> 0
             end,
-    {ok, ready, #data{sim = Sim, entity = rw_entity:new(self(), Scene, Cal, Sphere, St0), heap = body_heap(Sim#sim.n),
-                      delay = MaxMs}}.
+    {ok, ready, #data{sim = Sim, entity = rw_entity:new(self(), Scene, Cal, Sphere, St0), delay = MaxMs}}.
 
 %%% States: the entity's phases
 
@@ -95,9 +93,9 @@ rollback(Type, Msg, D) -> message(Type, Msg, D).
 
 -spec member(gen_statem:event_type(), term(), data()) -> gen_statem:state_enter_result(member) |
           gen_statem:event_handler_result(rw_entity:phase()).
-member(enter, _, #data{heap = Heap}) ->
+member(enter, _, #data{sim = #sim{n = N}}) ->
     %% (a leader that hands over gives back its group's heap)
-    _ = process_flag(min_heap_size, Heap),
+    _ = process_flag(min_heap_size, body_heap(N)),
     true = erlang:garbage_collect(),
     keep_state_and_data;
 member(Type, Msg, D) -> message(Type, Msg, D).
@@ -227,9 +225,9 @@ effect({wake_at, At}, #data{sim = #sim{gvt = Gvt}}) ->
     rw_gvt:wake_at(Gvt, self(), At);
 effect({regroup_ack, S}, #data{sim = #sim{gvt = Gvt}}) ->
     rw_gvt:regroup_ack(Gvt, self(), S);
-effect({own, Idxs}, #data{sim = #sim{owners = Owners}, heap = Heap}) ->
+effect({own, Idxs}, #data{sim = #sim{owners = Owners, n = N}}) ->
     true = ets:insert(Owners, [{I, self()} || I <- Idxs]),
-    _ = process_flag(min_heap_size, max(Heap, min(?MEMBER_HEAP * length(Idxs), ?GROUP_HEAP))),
+    _ = process_flag(min_heap_size, max(body_heap(N), min(?MEMBER_HEAP * length(Idxs), ?GROUP_HEAP))),
     ok.
 
 publish([], _Lvts, _Lvt) -> ok;

@@ -14,7 +14,7 @@
 -module(rw_bucket).
 -behaviour(gen_server).
 -include("rigidwarp.hrl").
--export([start_link/3, start_link/5, lock_probe/4, commit_unlock/4, probe_commit/5, lock_delete/5, unlock/2, gvt/2]).
+-export([start_link/5, lock_probe/4, commit_unlock/4, probe_commit/5, lock_delete/5, unlock/2, gvt/2]).
 -export([init/1, handle_call/3, handle_cast/2, handle_info/2]).
 
 -record(state, {
@@ -32,12 +32,9 @@
     profile :: rw_stats:counters() | undefined
 }).
 
-%% Profile: the simulation's counters when its work is profiled.
--spec start_link(#model{}, pos_integer(), rw_stats:counters() | undefined) -> {ok, pid()}.
-start_link(Model, Dt, Profile) -> start_link(Model, Dt, Profile, undefined, 233).
-
-%% ... recording its work into Trace (rw_trace), with a heap that never
-%% shrinks below MinHeap words.
+%% Profile: the simulation's counters when its work is profiled; Trace:
+%% where its work is recorded (rw_trace) when the simulation is traced;
+%% its heap never shrinks below MinHeap words.
 -spec start_link(#model{}, pos_integer(), rw_stats:counters() | undefined, ets:tid() | undefined, pos_integer()) ->
           {ok, pid()}.
 start_link(Model, Dt, Profile, Trace, MinHeap) ->

@@ -6,7 +6,7 @@
 -module(rw_sim_parts).
 -behaviour(supervisor).
 -include("rigidwarp.hrl").
--export([worker/3, bucket_pool/4, bucket_pool/6, body_pool/0, start_bodies/3, stop/1, init/1]).
+-export([worker/3, bucket_pool/6, body_pool/0, start_bodies/3, stop/1, init/1]).
 
 %% Start a body for each {Sphere, State}: [{Idx, Id, Pid}].
 -spec start_bodies(pid(), #sim{}, [{#sphere{}, #st{}}]) -> [{non_neg_integer(), binary(), pid()}].
@@ -31,12 +31,9 @@ stop(Sup) ->
             receive {'DOWN', MRef, process, Sup, _} -> ok end
     end.
 
-%% The child spec of a pool of N buckets.
--spec bucket_pool(#model{}, pos_integer(), pos_integer(), rw_stats:counters() | undefined) -> supervisor:child_spec().
-bucket_pool(M, Dt, N, Profile) -> bucket_pool(M, Dt, N, Profile, undefined, 0).
-
-%% ... whose work is recorded into Trace (rw_trace), for a simulation of
-%% Bodies bodies (0: not known).
+%% The child spec of a pool of N buckets for the cells of Bodies bodies,
+%% whose work is recorded into Trace (rw_trace) when the simulation is
+%% traced.
 -spec bucket_pool(#model{}, pos_integer(), pos_integer(), rw_stats:counters() | undefined, ets:tid() | undefined,
                   non_neg_integer()) -> supervisor:child_spec().
 bucket_pool(M, Dt, N, Profile, Trace, Bodies) ->
@@ -49,7 +46,6 @@ bucket_pool(M, Dt, N, Profile, Trace, Bodies) ->
 %% holds on average, at most 1M words (8 MiB). (20,000 spheres ran 10-15 %
 %% faster with 1M words than with the default 233; 500 the same.)
 bucket_heap(Bodies, Buckets) -> max(233, min(1 bsl 20, 3200 * Bodies div Buckets)).
-
 
 %% The child spec of the bodies' supervisor.
 -spec body_pool() -> supervisor:child_spec().

@@ -85,7 +85,8 @@ nodes(Sup, Nodes, #scene{model = M, substep = Dt, spheres = Spheres, initial = I
     Profile = maps:get(profile, Opts, false),
     Sites = [begin
                  SiteStats = case Node =:= node() of true -> Stats; false -> undefined end,
-                 SiteOpts = #{model => M, dt => Dt, per => Per, profile => Profile, stats => SiteStats},
+                 SiteOpts = #{model => M, dt => Dt, per => Per, bodies => length(Spheres) div K, profile => Profile,
+                              stats => SiteStats},
                  {ok, Pid, Buckets} = child(Sup, #{id => {site, I}, start => {rw_site, start_link, [Node, SiteOpts]},
                                                    restart => permanent, shutdown => 10000, type => worker}),
                  {I, Node, Pid, Buckets}

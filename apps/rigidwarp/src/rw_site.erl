@@ -21,11 +21,12 @@
 -export([init/2]).
 -export_type([options/0]).
 
-%% The buckets to start (per: how many), their model and substep, and
-%% whether to profile; stats: the run's counters, when the site is on the
-%% run's node (elsewhere the site has its own).
--type options() :: #{model := #model{}, dt := pos_integer(), per := pos_integer(), profile := boolean(),
-                     stats := rw_stats:counters() | undefined}.
+%% The buckets to start (per: how many), their model and substep, the
+%% bodies they are for (about as many as the site will hold), and whether
+%% to profile; stats: the run's counters, when the site is on the run's
+%% node (elsewhere the site has its own).
+-type options() :: #{model := #model{}, dt := pos_integer(), per := pos_integer(), bodies := non_neg_integer(),
+                     profile := boolean(), stats := rw_stats:counters() | undefined}.
 
 -define(START_MS, 60000).
 
@@ -79,7 +80,7 @@ call(Site, Req) ->
 }).
 
 -spec init(pid(), options()) -> no_return().
-init(Parent, #{model := M, dt := Dt, per := Per, profile := Profile, stats := Stats0}) ->
+init(Parent, #{model := M, dt := Dt, per := Per, bodies := Bodies, profile := Profile, stats := Stats0}) ->
     process_flag(trap_exit, true),
     Stats = case Stats0 of undefined -> rw_stats:new(); _ -> Stats0 end,
     {ok, Sup} = supervisor:start_link(rw_sim_parts, sim),
@@ -87,7 +88,7 @@ init(Parent, #{model := M, dt := Dt, per := Per, profile := Profile, stats := St
     Records = ets:new(rw_site_records, [ordered_set, public, {write_concurrency, true}]),
     Tables = (rw_sim_tables:tables(TablesPid))#{records => Records},
     BucketProfile = case Profile of true -> Stats; false -> undefined end,
-    {ok, BucketSup} = supervisor:start_child(Sup, rw_sim_parts:bucket_pool(M, Dt, Per, BucketProfile)),
+    {ok, BucketSup} = supervisor:start_child(Sup, rw_sim_parts:bucket_pool(M, Dt, Per, BucketProfile, undefined, Bodies)),
     Buckets = [P || {_, P} <- lists:sort([{I, P} || {{bucket, I}, P, _, _} <- supervisor:which_children(BucketSup)])],
     Parent ! {self(), buckets, Buckets},
     loop(#site{parent = Parent, sup = Sup, tables = Tables, buckets = Buckets, stats = Stats, profile = Profile,
