@@ -16,11 +16,12 @@
 %% by a margin far above rounding, so the list finds exactly the contacts
 %% a test of every pair finds.
 %%
-%% Fixtures with a bounding box (cylinders, solid boxes) are listed per
-%% member the same way: those within its radius plus half a skin (one
-%% radius) of where it was when the list was built, valid while it stays
-%% within half a skin of there (absolutely: fixtures do not move). A
-%% member far from every post of a scene then tests none of them.
+%% Fixtures are listed per member the same way: those within its radius
+%% plus half a skin (one radius) of where it was when the list was built,
+%% valid while it stays within half a skin of there (absolutely: fixtures
+%% do not move). A member far from every post, wall and floor of a scene
+%% then tests none of them: a sphere in free flight in a container checks
+%% its move from the anchor, not the six walls, at each substep.
 -module(rw_island).
 -include("rw_physics.hrl").
 -export([new/3, size/1, posts/3, step/3, post/3, advance/3]).
@@ -43,8 +44,8 @@
     anchors = undefined :: tuple() | undefined,
     limit = 0.0 :: float(),
     pairs = [] :: [{pos_integer(), pos_integer()}],
-    %% the fixtures each member may touch (all of them when no fixture has a
-    %% bounding box), while it stays within flimit of its fanchor
+    %% the fixtures each member may touch (kept when there are any), while
+    %% it stays within flimit of its fanchor
     bounded :: boolean(),
     near :: tuple(),
     fanchors = undefined :: tuple() | undefined,
@@ -58,7 +59,7 @@ new(Model, Spheres0, Fixtures) ->
     RMax = lists:max([R || #sphere{radius = R} <- Spheres]),
     #island{model = Model, spheres = list_to_tuple(Spheres), fixtures = Fixtures,
             pos = maps:from_list(lists:zip([I || #sphere{idx = I} <- Spheres], lists:seq(1, length(Spheres)))),
-            skin = 0.5 * RMax, bounded = lists:any(fun(#fixture{box = B}) -> B =/= unbounded end, Fixtures),
+            skin = 0.5 * RMax, bounded = Fixtures =/= [],
             near = list_to_tuple([Fixtures || _ <- Spheres])}.
 
 -spec size(island()) -> pos_integer().
@@ -125,10 +126,22 @@ advance_all(K, M, States, Posts, Acc) ->
 -spec post(island(), #st{}, [external()]) -> {{rw_vec:vec(), rw_vec:vec() | undefined, rw_vec:vec()}, island()}.
 post(#island{model = M, spheres = {S}, bounded = false, fixtures = Fixtures} = I, St, External) ->
     {alone(M, S, St, Fixtures, External), I};
+post(#island{model = #model{ccd = false} = M, spheres = {S}, near = {Near}, fanchors = {{AX, AY, AZ}}, flimit = Limit} = I,
+     #st{p = {X, Y, Z}} = St, External)
+  when is_float(X), is_float(Y), is_float(Z), is_float(AX), is_float(AY), is_float(AZ), is_float(Limit) ->
+    %% within/6 for one member without CCD, written out (the hot path)
+    DX = X - AX,
+    DY = Y - AY,
+    DZ = Z - AZ,
+    case DX * DX + DY * DY + DZ * DZ =< Limit * Limit of
+        true -> {alone(M, S, St, Near, External), I};
+        false -> post(I#island{fanchors = undefined}, St, External)
+    end;
 post(#island{model = M, spheres = {S}} = I0, St, External) ->
     #island{near = {Near}} = I = fixtures_near(I0, {St}, displacements(M, {St})),
     {alone(M, S, St, Near, External), I}.
 
+alone(_M, _S, St, [], []) -> rw_dynamics:respond(St, []);
 alone(M, S, St, Fixtures, []) -> respond(St, rw_dynamics:fixture_effects(M, S, St, Fixtures), []);
 alone(M, S, St, Fixtures, External) ->
     respond(St, rw_dynamics:fixture_effects(M, S, St, Fixtures), lists:keysort(1, [Keyed || {_, Keyed} <- External])).
@@ -202,12 +215,25 @@ fixtures_fresh(#island{spheres = Spheres, fixtures = Fixtures} = I, States, Disp
             I#island{near = list_to_tuple([Fixtures || _ <- tuple_to_list(Spheres)]), fanchors = undefined}
     end.
 
-%% A fixture may touch a sphere whose centre stays within Reach of P (the
-%% narrowphase rejects a sphere farther than its radius outside the box).
+%% A fixture may touch a sphere whose centre stays within Reach of P: the
+%% narrowphase rejects a sphere farther than its radius outside the box, on
+%% the inner side of a plane by more than its radius, or farther than that
+%% from every wall of a container. The distances to a plane or a wall are
+%% rounded: a margin far above that rounding keeps a fixture listed when
+%% they are about Reach.
+may_touch(#fixture{shape = {plane, N, Off}, box = unbounded}, P, Reach) ->
+    vdot(N, P) - Off < Reach + margin(P, Off, Reach);
+may_touch(#fixture{shape = {box, {CX, CY, CZ}, {EX, EY, EZ}, hollow}, box = unbounded}, {X, Y, Z} = P, Reach) ->
+    Near = Reach + margin(P, rw_vec:max_abs({CX + EX, CY + EY, CZ + EZ}) + rw_vec:max_abs({CX - EX, CY - EY, CZ - EZ}),
+                          Reach),
+    X - (CX - EX) < Near orelse (CX + EX) - X < Near orelse Y - (CY - EY) < Near orelse (CY + EY) - Y < Near orelse
+        Z - (CZ - EZ) < Near orelse (CZ + EZ) - Z < Near;
 may_touch(#fixture{box = unbounded}, _P, _Reach) -> true;
 may_touch(#fixture{box = {X0, Y0, Z0, X1, Y1, Z1}}, {X, Y, Z}, Reach) ->
     not (X + Reach < X0 orelse X - Reach > X1 orelse Y + Reach < Y0 orelse Y - Reach > Y1 orelse
          Z + Reach < Z0 orelse Z - Reach > Z1).
+
+margin(P, Far, Reach) -> 1.0e-9 * (rw_vec:max_abs(P) + abs(Far) + Reach).
 
 %%% The neighbour list
 

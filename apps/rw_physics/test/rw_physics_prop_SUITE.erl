@@ -101,7 +101,12 @@ island_mutations() ->
      {unsquared_limit, "Anchors, Drift, Limit * Limit)", "Anchors, Drift, Limit)"},
      %% fixtures listed only when within a radius of a member, without the
      %% half skin it may still move
-     {no_fixture_margin, "R + 0.5 * Reach)", "R)"}].
+     {no_fixture_margin, "R + 0.5 * Reach)", "R)"},
+     %% a floor listed only within half that reach
+     {plane_half_reach, "vdot(N, P) - Off < Reach +", "vdot(N, P) - Off < 0.5 * Reach +"},
+     %% a container's top wall never listed
+     {container_without_top, "orelse\n        Z - (CZ - EZ) < Near orelse (CZ + EZ) - Z < Near;",
+      "orelse\n        Z - (CZ - EZ) < Near;"}].
 
 count(Text, Part) -> length(string:split(Text, Part, all)) - 1.
 
