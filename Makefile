@@ -2,13 +2,13 @@
 REBAR ?= rebar3
 ESCRIPT = _build/default/bin/rigidwarp
 # The VM flags the rigidwarp escript runs with (rebar.config escript_emu_args).
-# A 1 GB super carrier (memory beyond it comes from outside) keeps freed
+# A 4 GB super carrier (memory beyond it comes from outside) keeps freed
 # memory mapped: the heaps that bodies, buckets and the GVT process grow and
 # drop then do not fault in fresh pages and unmap them again (each unmap
 # stops the other core for a TLB flush); Bouncing 500 over 2000 ms on 2
 # schedulers took 2.5-2.6 s without it and 1.85-2.07 s with it.
 # The benchmarks and the shell run in rebar3's VM, so they get them here.
-VM_FLAGS = +sbtu +MMscs 1024 +MMsco false
+VM_FLAGS = +sbtu +MMscs 4096 +MMsco false
 
 .PHONY: all deps build test docs viewer-test bench accuracy run shell clean
 

@@ -17,7 +17,7 @@
 -define(CONNECT_MS, 10000).
 %% The escript's memory flags (rebar.config, Makefile's VM_FLAGS): a peer
 %% is as fast a node as the one that starts it.
--define(PEER_FLAGS, ["+sbtu", "+MMscs", "1024", "+MMsco", "false"]).
+-define(PEER_FLAGS, ["+sbtu", "+MMscs", "4096", "+MMsco", "false"]).
 
 %% Is Spec a valid spec, and if not, why.
 -spec check(term()) -> ok | {error, string()}.
