@@ -13,9 +13,10 @@
 %% Where a write went: per bucket index, its cells.
 -type where() :: [{non_neg_integer(), [rw_hash:cell()]}].
 %% A writer's last plan without its times, for write/8: each member's box
-%% of cells, and per bucket the cells and the members in each.
--type cache() :: none | {[{non_neg_integer(), rw_hash:box()}], [{non_neg_integer(), [rw_hash:cell()],
-                                                                   [{rw_hash:cell(), [non_neg_integer()]}]}]}.
+%% of cells, and per bucket its cells in order with the members in each,
+%% ascending (the plan but its times).
+-type cache() :: none | {[{non_neg_integer(), rw_hash:box()}],
+                         #{non_neg_integer() => {[rw_hash:cell()], [{rw_hash:cell(), [non_neg_integer()]}]}}}.
 
 %% The write of an entity's step: Writer's members Spheres (a tuple, in
 %% member order) with their packed states Steps from T0 on, and its plan
@@ -36,14 +37,16 @@ members(Writer, T0, Spheres, Steps, Ccd) ->
     {Members, {Writer, T0, maps:from_list([{Idx, Payload} || {{Idx, _, _, _, _, _} = Payload, _} <- Members]),
                union([Bounds || {{_, _, _, _, _, Bounds}, _} <- Members])}}.
 
-%% write/7 for a writer that writes again and again with its members in the
-%% same cells (bodies resting in a pile, a group in lock step with a
-%% neighbour): when every member's states keep the box of cells they had
-%% in the last write, the plan is that write's with the new times, with no
-%% cells hashed to buckets again. Each member then spans its whole box for
-%% the whole step, which covers every cell it touches at every substep
-%% (a wider span adds candidates to the buckets' tests, never contacts),
-%% so the buckets find the same contacts as with write/7.
+%% write/7 for a writer that writes again and again with its members in
+%% much the same cells (bodies resting in a pile, a group in lock step with
+%% a neighbour): when each member spanned the box of cells of its states
+%% for the whole of the last write, and does so again, the plan is that
+%% write's with the new times, the members whose boxes changed moved to
+%% their new cells: only their cells are hashed to buckets. (In a pile of
+%% hundreds, some member crosses a cell border at almost every write.) The
+%% plan is write/7's, term for term; spanning a whole box for the whole
+%% step covers every cell a member touches at every substep (a wider span
+%% adds candidates to the buckets' tests, never contacts).
 -spec write(term(), non_neg_integer(), tuple(), [rw_states:packed()], #model{}, {float(), pos_integer()},
             pos_integer() | rw_place:placement(), cache()) -> {rw_cells:write(), plan(), cache()}.
 write(Writer, T0, Spheres, Steps, #model{ccd = false}, {CellSize, Dt}, NBuckets, Cache) ->
@@ -52,10 +55,10 @@ write(Writer, T0, Spheres, Steps, #model{ccd = false}, {CellSize, Dt}, NBuckets,
     Shape = [{Idx, all_box(Extents, R, CellSize)} || {{Idx, _, _, _, _, _}, {_, Extents, R}} <- Members],
     Tb = T0 + (N - 1) * Dt,
     Even = lists:all(fun(C) -> C =:= N end, Counts),
-    case Cache of
-        {Shape, Skeleton} when Even ->
+    case Even andalso moved(Cache, Shape, Members, CellSize, NBuckets) of
+        {ok, {_, Skeleton} = Cache1} ->
             {Write, [{B, Cells, [{C, T0, Tb, [{I, T0, Tb} || I <- Is]} || {C, Is} <- ByCell]}
-                     || {B, Cells, ByCell} <- Skeleton], Cache};
+                     || {B, {Cells, ByCell}} <- lists:sort(maps:to_list(Skeleton))], Cache1};
         _ ->
             MemberSpans = [{Idx, cell_spans(T0, Spans, CellSize, Dt)} || {{Idx, _, _, _, _, _}, Spans} <- Members],
             Plan = plan(MemberSpans, NBuckets),
@@ -77,9 +80,81 @@ cache(Shape, MemberSpans, Plan, T0, Tb) ->
                                   lists:all(fun({Ta, Tz}) -> Ta =:= T0 andalso Tz =:= Tb end, maps:values(Spans))
                       end, lists:zip(Shape, MemberSpans)),
     case Whole of
-        true -> {Shape, [{B, Cells, [{C, [I || {I, _, _} <- Ms]} || {C, _, _, Ms} <- Spans]} || {B, Cells, Spans} <- Plan]};
+        true -> {Shape, maps:from_list([{B, {Cells, [{C, [I || {I, _, _} <- Ms]} || {C, _, _, Ms} <- Spans]}}
+                                        || {B, Cells, Spans} <- Plan])};
         false -> none
     end.
+
+%% The last write's plan (but its times) with the members whose boxes
+%% changed in their new cells, when the same members write again and each
+%% spans its whole box again (as cell_spans/4 decides: each member that
+%% kept its box did last time, but the decision depends on where its step
+%% starts too); else fresh, also when fewer members kept their boxes than
+%% changed them.
+moved(none, _Shape, _Members, _CellSize, _NB) -> fresh;
+moved({Old, Skeleton} = Cache, Shape, Members, CellSize, NB) ->
+    case changed(Old, Shape, [], 0) of
+        {Changed, Kept} when Kept >= length(Changed) ->
+            case lists:all(fun({{_, {Packed, _, R}}, {_, All}}) -> whole(Packed, All, R, CellSize) end,
+                           lists:zip(Members, Shape)) of
+                true when Changed =:= [] -> {ok, Cache};
+                true -> {ok, {Shape, move(Changed, NB, Skeleton)}};
+                false -> fresh
+            end;
+        _ -> fresh
+    end.
+
+%% The members whose boxes changed, {Idx, Old, New}, and how many kept
+%% theirs; different when the members are not the same.
+changed([], [], Changed, Kept) -> {Changed, Kept};
+changed([{I, Box} | Old], [{I, Box} | New], Changed, Kept) -> changed(Old, New, Changed, Kept + 1);
+changed([{I, OldBox} | Old], [{I, NewBox} | New], Changed, Kept) ->
+    changed(Old, New, [{I, OldBox, NewBox} | Changed], Kept);
+changed(_, _, _, _) -> different.
+
+%% Does cell_spans/4 span every cell of All, the box of all the states of
+%% a step, for the whole step? (A box of at most two cells is at most
+%% twice the first state's box.)
+whole(Packed, All, R, C) ->
+    AllSize = rw_hash:box_size(All),
+    AllSize =< 2 orelse begin
+                            Box = rw_hash:box(aabb(Packed, 1, R), C),
+                            All =:= Box orelse AllSize =< 2 * rw_hash:box_size(Box)
+                        end.
+
+%% The skeleton with each changed member out of the cells of its old box
+%% and into those of its new one; the buckets touched are rebuilt in order.
+move(Changed, NB, Skeleton) ->
+    Out = lists:foldl(fun({I, OldBox, _}, Acc) ->
+                              edit_all(rw_hash:box_cells(OldBox), NB, fun(Is) -> lists:delete(I, Is) end, Skeleton, Acc)
+                      end, #{}, Changed),
+    In = lists:foldl(fun({I, _, NewBox}, Acc) ->
+                             edit_all(rw_hash:box_cells(NewBox), NB, fun(Is) -> lists:merge([I], Is) end, Skeleton, Acc)
+                     end, Out, Changed),
+    maps:fold(fun(B, Cells, Skel) when map_size(Cells) =:= 0 -> maps:remove(B, Skel);
+                 (B, Cells, Skel) ->
+                      ByCell = lists:sort(maps:to_list(Cells)),
+                      Skel#{B => {[C || {C, _} <- ByCell], ByCell}}
+              end, Skeleton, In).
+
+%% Touched: the buckets edited so far, each its cells => members. The
+%% members of each of Cells edited by Edit (a cell left empty goes).
+edit_all(Cells, NB, Edit, Skeleton, Touched) ->
+    lists:foldl(fun(C, Acc) ->
+                        B = bucket(C, NB),
+                        ByCell = case Acc of
+                                     #{B := M} -> M;
+                                     #{} -> case Skeleton of
+                                                #{B := {_, L}} -> maps:from_list(L);
+                                                #{} -> #{}
+                                            end
+                                 end,
+                        ByCell1 = case Edit(maps:get(C, ByCell, [])) of
+                                      [] -> maps:remove(C, ByCell);
+                                      Is -> ByCell#{C => Is}
+                                  end,
+                        Acc#{B => ByCell1}
+                end, Touched, Cells).
 
 %% One member's payload for the buckets, and what cell_spans/4 needs.
 member_write(Writer, #sphere{idx = Idx, radius = R} = S, T0, Packed, Ccd) ->
@@ -205,10 +280,15 @@ plan(MemberSpans, NB) ->
     ByBucket = maps:fold(fun(Cell, [{_, Ta0, Tb0} | _] = Ms, Acc) ->
                                  {Ta, Tb} = lists:foldl(fun({_, A, B}, {L, H}) -> {min(A, L), max(B, H)} end,
                                                         {Ta0, Tb0}, Ms),
-                                 maps:update_with(bucket(Cell, NB), fun(L) -> [{Cell, Ta, Tb, Ms} | L] end,
-                                                  [{Cell, Ta, Tb, Ms}], Acc)
+                                 maps:update_with(bucket(Cell, NB), fun(L) -> [{Cell, Ta, Tb, lists:sort(Ms)} | L] end,
+                                                  [{Cell, Ta, Tb, lists:sort(Ms)}], Acc)
                          end, #{}, ByCell),
-    [{B, lists:sort([C || {C, _, _, _} <- Spans]), Spans} || {B, Spans} <- lists:sort(maps:to_list(ByBucket))].
+    %% (cells and each cell's members in order: the same plan whatever the
+    %% order of the maps, and as write/8 moves members in its last plan)
+    [begin
+         Sorted = lists:sort(Spans),
+         {B, [C || {C, _, _, _} <- Sorted], Sorted}
+     end || {B, Spans} <- lists:sort(maps:to_list(ByBucket))].
 
 %% A pool of NB buckets on one node, or a placement over several (rw_place).
 bucket(Cell, NB) when is_integer(NB) -> rw_hash:bucket(Cell, NB);

@@ -77,3 +77,31 @@ ccd_plans_afresh_test() ->
     St = #st{p = {0.0, 0.0, 0.0}, v = {1.0, 0.0, 0.0}},
     Packed = rw_states:pack([St], [{0.001, 0.0, 0.0}], false, true),
     {_, _, none} = rw_tvht_plan:write(self(), 0, Sp, [Packed], (model())#model{ccd = true}, {?CELL, ?DT}, 4, none).
+
+%% A pile in which a few members cross cell borders between writes: the
+%% plan made from the last one, with those members moved in it, is
+%% write/7's term for term, and it is made so most of the time.
+moved_members_move_in_the_last_plan_test() ->
+    rand:seed(exsss, 11),
+    N = 40,
+    Sp = spheres(N),
+    Jump = fun() -> (rand:uniform() - 0.5) * ?CELL end,
+    Starts0 = [{{rand:uniform() * 10.0, rand:uniform() * 10.0, rand:uniform() * 2.0}, {0.0, 0.0, 0.0}}
+               || _ <- lists:seq(1, N)],
+    {_, _, Moved} =
+        lists:foldl(
+          fun(Round, {Cache, Starts, Count}) ->
+                  Starts1 = [case rand:uniform(10) of
+                                 1 -> {rw_vec:add(P, {Jump(), Jump(), Jump()}), {0.0, 0.001 * Jump(), 0.0}};
+                                 _ -> {P, V}
+                             end || {P, V} <- Starts],
+                  Steps = steps(Starts1, 1 + Round rem 4),
+                  T0 = Round * 10,
+                  {W, Plan, Cache1} = rw_tvht_plan:write(self(), T0, Sp, Steps, model(), {?CELL, ?DT}, 4, Cache),
+                  ?assertEqual(rw_tvht_plan:write(self(), T0, Sp, Steps, model(), {?CELL, ?DT}, 4), {W, Plan}),
+                  {Cache1, Starts1, Count + case Cache =/= none andalso Cache1 =/= none andalso Cache1 =/= Cache of
+                                                true -> 1;
+                                                false -> 0
+                                            end}
+          end, {none, Starts0, 0}, lists:seq(1, 100)),
+    ?assert(Moved > 50).
