@@ -44,9 +44,8 @@
     anchors = undefined :: tuple() | undefined,
     limit = 0.0 :: float(),
     pairs = [] :: [{pos_integer(), pos_integer()}],
-    %% the fixtures each member may touch (kept when there are any), while
-    %% it stays within flimit of its fanchor
-    bounded :: boolean(),
+    %% the fixtures each member may touch, while it stays within flimit of
+    %% its fanchor
     near :: tuple(),
     fanchors = undefined :: tuple() | undefined,
     flimit = 0.0 :: float()
@@ -59,7 +58,7 @@ new(Model, Spheres0, Fixtures) ->
     RMax = lists:max([R || #sphere{radius = R} <- Spheres]),
     #island{model = Model, spheres = list_to_tuple(Spheres), fixtures = Fixtures,
             pos = maps:from_list(lists:zip([I || #sphere{idx = I} <- Spheres], lists:seq(1, length(Spheres)))),
-            skin = 0.5 * RMax, bounded = Fixtures =/= [],
+            skin = 0.5 * RMax,
             near = list_to_tuple([Fixtures || _ <- Spheres])}.
 
 -spec size(island()) -> pos_integer().
@@ -124,8 +123,8 @@ advance_all(K, M, States, Posts, Acc) ->
 %% most common entity, and the hot path of free flight): its fixtures and
 %% the outside.
 -spec post(island(), #st{}, [external()]) -> {{rw_vec:vec(), rw_vec:vec() | undefined, rw_vec:vec()}, island()}.
-post(#island{model = M, spheres = {S}, bounded = false, fixtures = Fixtures} = I, St, External) ->
-    {alone(M, S, St, Fixtures, External), I};
+post(#island{model = M, spheres = {S}, fixtures = []} = I, St, External) ->
+    {alone(M, S, St, [], External), I};
 post(#island{model = #model{ccd = false} = M, spheres = {S}, near = {Near}, fanchors = {{AX, AY, AZ}}, flimit = Limit} = I,
      #st{p = {X, Y, Z}} = St, External)
   when is_float(X), is_float(Y), is_float(Z), is_float(AX), is_float(AY), is_float(AZ), is_float(Limit) ->
@@ -189,7 +188,7 @@ displacements(M, States) -> list_to_tuple([rw_integrate:free_displacement(M, St)
 
 %%% The fixtures near each member
 
-fixtures_near(#island{bounded = false} = I, _States, _Disps) -> I;
+fixtures_near(#island{fixtures = []} = I, _States, _Disps) -> I;
 fixtures_near(#island{fanchors = undefined} = I, States, Disps) -> fixtures_fresh(I, States, Disps);
 fixtures_near(#island{fanchors = Anchors, flimit = Limit} = I, States, Disps) ->
     case within(States, Anchors, vzero(), Disps, vzero(), Limit) of
