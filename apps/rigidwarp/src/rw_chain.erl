@@ -5,7 +5,7 @@
 %% on the way (to commit once the step is written).
 -module(rw_chain).
 -include("rigidwarp.hrl").
--export([run/5, pack/2]).
+-export([run/5, run_each/5, pack/2]).
 -export_type([context/0, passed/0]).
 
 %% What a step needs besides the states: the model, the substep, the
@@ -19,19 +19,40 @@
 
 %% The members' states after T up to Last (per member, rw_states:packed()
 %% of one state per substep), the sync points passed on the way, and the
-%% island with its neighbour list. A body alone keeps its states in a list
-%% and packs them at the end (a step of at most a stride); a group appends
-%% each member's states to a binary as it computes them, so that the
-%% states of a long step are never on the heap for the garbage collector
-%% to copy.
+%% island with its neighbour list. A body alone without CCD flies free
+%% through flight/25; a group, and a body with CCD, append each member's
+%% states to a binary as they compute them (a body with CCD keeps them in
+%% a list and packs them at the end, a step of at most a stride), so that
+%% the states of a long step are never on the heap for the garbage
+%% collector to copy.
 -spec run(non_neg_integer(), tuple(), non_neg_integer(), context(), rw_island:island()) ->
           {[passed()], [rw_states:packed()], rw_island:island()}.
-run(T, {St}, Last, {M, _, _, _, _} = Ctx, Island0) ->
-    {Passed, States, Island} = alone(T, St, Last, Ctx, Island0, [], []),
-    {Passed, [pack(States, M)], Island};
+run(T, {St}, Last, {#model{ccd = false, rotation = Rot}, _, Base, TL, Cal} = Ctx, Island0) when T < Last ->
+    %% the substeps at which the body does not fly free: its group's
+    %% start, and known contacts with the outside
+    Busy = lists:usort([TB || {TB, _} <- [Base], TB >= T, TB < Last] ++ rw_timeline:contact_times(T, Last, TL)),
+    #st{p = {X, Y, Z}, v = {VX, VY, VZ}, q = Q, w = W} = St,
+    try flight(T, X, Y, Z, VX, VY, VZ, Q, W, Last, Ctx, rw_island:free_zone(Island0), Island0, rw_sync:next_at(T, Cal),
+               Busy, [], <<>>, none, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0) of
+        {Passed, Bin, Extents, Reach, Island} -> {Passed, [rw_states:packed(Bin, Rot, Extents, Reach)], Island}
+    catch
+        %% (a move between states too far apart for a double: the reach is
+        %% measured as rw_states:pack/4 measures it)
+        error:badarith -> run_each(T, St, Last, Ctx, Island0)
+    end;
+run(T, {St}, Last, Ctx, Island0) ->
+    run_each(T, St, Last, Ctx, Island0);
 run(T, States, Last, {#model{rotation = Rot, ccd = Ccd}, _, _, _, _} = Ctx, Island0) ->
     {Passed, Bins, Island} = chain(T, States, Last, Ctx, Island0, [], [<<>> || _ <- tuple_to_list(States)]),
     {Passed, [rw_states:seal(Bin, Rot, Ccd) || Bin <- Bins], Island}.
+
+%% A body on its own, stepped substep by substep through its island: what
+%% run/5 computes for it.
+-spec run_each(non_neg_integer(), #st{}, non_neg_integer(), context(), rw_island:island()) ->
+          {[passed()], [rw_states:packed()], rw_island:island()}.
+run_each(T, St, Last, {M, _, _, _, _} = Ctx, Island0) ->
+    {Passed, States, Island} = alone(T, St, Last, Ctx, Island0, [], []),
+    {Passed, [pack(States, M)], Island}.
 
 %% States packed (with CCD, with their free displacements).
 -spec pack([#st{}, ...], #model{}) -> rw_states:packed().
@@ -50,20 +71,116 @@ disp(St, M) -> rw_integrate:free_displacement(M, St).
 add_all(_K, _States, [], _M) -> [];
 add_all(K, States, [Bin | Bins], M) -> [add(Bin, element(K, States), M) | add_all(K + 1, States, Bins, M)].
 
-%% A body on its own, the hot path of free flight.
+%% A body on its own, substep by substep.
 alone(T, _St, Last, _Ctx, Island, Passed, Acc) when T >= Last ->
     {lists:reverse(Passed), lists:reverse(Acc), Island};
-alone(T, St, Last, {M, Dt, Base, TL, Cal} = Ctx, Island0, Passed, Acc) ->
-    {{V, W, U} = Post, Island} = case Base of
-                                     {T, {BasePost}} -> {BasePost, Island0};
-                                     _ -> rw_island:post(Island0, St, rw_timeline:external(T, TL))
-                                 end,
-    Next = rw_integrate:advance(M, St, V, W, U),
+alone(T, St, Last, {_, Dt, _, _, Cal} = Ctx, Island0, Passed, Acc) ->
+    {Post, Next, Island} = substep(T, St, Ctx, Island0),
     Passed1 = case rw_sync:is_sync(T, Cal) of
                   true -> [{T, {St}, {Post}} | Passed];
                   false -> Passed
               end,
     alone(T + Dt, Next, Last, Ctx, Island, Passed1, [Next | Acc]).
+
+%% A body's post-response velocities at T and its next state.
+substep(T, St, {M, _, Base, TL, _}, Island0) ->
+    {{V, W, U} = Post, Island} = case Base of
+                                     {T, {BasePost}} -> {BasePost, Island0};
+                                     _ -> rw_island:post(Island0, St, rw_timeline:external(T, TL))
+                                 end,
+    {Post, rw_integrate:advance(M, St, V, W, U), Island}.
+
+%% A body on its own without CCD, the hot path of free flight: while it
+%% touches nothing it keeps its velocities, and a substep is a few float
+%% operations (those of rw_integrate:advance/5 with a zero pseudo-velocity,
+%% in the same order) and the state appended to the binary. Other substeps
+%% (a fixture near, a known contact, the group's start) go through the
+%% island as in alone/7. Sync is the next sync point, Busy the substeps
+%% known not to be free.
+flight(T, _X, _Y, _Z, _VX, _VY, _VZ, _Q, _W, Last, _Ctx, _Zone, Island, _Sync, _Busy, Passed, Bin,
+       _PX, X0, Y0, Z0, X1, Y1, Z1, Reach) when T >= Last ->
+    {lists:reverse(Passed), Bin, {X0, Y0, Z0, X1, Y1, Z1}, Reach, Island};
+flight(T, X, Y, Z, VX, VY, VZ, Q, W, Last, {#model{dt = Dt, gravity = G, integrator = Int}, DtT, _, _, Cal} = Ctx,
+       Zone, Island, Sync, Busy, Passed0, Bin, First, X0, Y0, Z0, X1, Y1, Z1, Reach)
+  when is_float(X), is_float(Y), is_float(Z), is_float(VX), is_float(VY), is_float(VZ), is_float(Dt) ->
+    {Passed, NX, NY, NZ, NVX, NVY, NVZ, NQ, NW, Zone1, Island1} =
+        case is_free(T, X, Y, Z, Zone, Busy) of
+            true ->
+                Pd = case T =:= Sync of
+                         true -> [{T, {#st{p = {X, Y, Z}, v = {VX, VY, VZ}, q = Q, w = W}},
+                                   {{{VX, VY, VZ}, W, {0.0, 0.0, 0.0}}}} | Passed0];
+                         false -> Passed0
+                     end,
+                {AX, AY, AZ, AVX, AVY, AVZ} =
+                    case G of
+                        undefined ->
+                            {X + VX * Dt, Y + VY * Dt, Z + VZ * Dt, VX, VY, VZ};
+                        {GX, GY, GZ} when is_float(GX), is_float(GY), is_float(GZ) ->
+                            VXg = VX + GX * Dt, VYg = VY + GY * Dt, VZg = VZ + GZ * Dt,
+                            case Int of
+                                symplectic_euler -> {X + VXg * Dt, Y + VYg * Dt, Z + VZg * Dt, VXg, VYg, VZg};
+                                explicit_euler -> {X + VX * Dt, Y + VY * Dt, Z + VZ * Dt, VXg, VYg, VZg};
+                                verlet ->
+                                    H = 0.5 * Dt * Dt,
+                                    {(X + VX * Dt) + GX * H, (Y + VY * Dt) + GY * H, (Z + VZ * Dt) + GZ * H,
+                                     VXg, VYg, VZg}
+                            end
+                    end,
+                AQ = case W of
+                         undefined -> Q;
+                         _ -> rw_quat:integrate(Q, W, Dt)
+                     end,
+                {Pd, AX, AY, AZ, AVX, AVY, AVZ, AQ, W, Zone, Island};
+            false ->
+                St = #st{p = {X, Y, Z}, v = {VX, VY, VZ}, q = Q, w = W},
+                {Post, #st{p = {AX, AY, AZ}, v = {AVX, AVY, AVZ}, q = AQ, w = AW}, I1} = substep(T, St, Ctx, Island),
+                Pd = case T =:= Sync of
+                         true -> [{T, {St}, {Post}} | Passed0];
+                         false -> Passed0
+                     end,
+                {Pd, AX, AY, AZ, AVX, AVY, AVZ, AQ, AW, rw_island:free_zone(I1), I1}
+        end,
+    Sync1 = case T =:= Sync of
+                true -> rw_sync:next_at(T + DtT, Cal);
+                false -> Sync
+            end,
+    Busy1 = case Busy of
+                [T | More] -> More;
+                _ -> Busy
+            end,
+    Bin1 = append(Bin, NX, NY, NZ, NVX, NVY, NVZ, NQ, NW),
+    case First of
+        none ->
+            %% the first state: the box is its position, the reach 0 (as
+            %% rw_states:pack/4 measures them)
+            flight(T + DtT, NX, NY, NZ, NVX, NVY, NVZ, NQ, NW, Last, Ctx, Zone1, Island1, Sync1, Busy1, Passed, Bin1,
+                   some, NX, NY, NZ, NX, NY, NZ, 0.0);
+        _ when is_float(NX), is_float(NY), is_float(NZ), is_float(X0), is_float(Y0), is_float(Z0), is_float(X1),
+               is_float(Y1), is_float(Z1), is_float(Reach) ->
+            Step = abs(NX - X) + abs(NY - Y) + abs(NZ - Z),
+            flight(T + DtT, NX, NY, NZ, NVX, NVY, NVZ, NQ, NW, Last, Ctx, Zone1, Island1, Sync1, Busy1, Passed, Bin1,
+                   some, if NX < X0 -> NX; true -> X0 end, if NY < Y0 -> NY; true -> Y0 end,
+                   if NZ < Z0 -> NZ; true -> Z0 end, if NX > X1 -> NX; true -> X1 end,
+                   if NY > Y1 -> NY; true -> Y1 end, if NZ > Z1 -> NZ; true -> Z1 end,
+                   if Step > Reach -> Step; true -> Reach end)
+    end.
+
+is_free(T, _X, _Y, _Z, _Zone, [T | _]) -> false;
+is_free(_T, _X, _Y, _Z, always, _Busy) -> true;
+is_free(_T, X, Y, Z, {AX, AY, AZ, L2}, _Busy) when is_float(X), is_float(Y), is_float(Z), is_float(AX), is_float(AY),
+                                                    is_float(AZ), is_float(L2) ->
+    DX = X - AX,
+    DY = Y - AY,
+    DZ = Z - AZ,
+    DX * DX + DY * DY + DZ * DZ =< L2;
+is_free(_T, _X, _Y, _Z, none, _Busy) -> false.
+
+%% The state appended as rw_states:append/4 appends it.
+append(Bin, X, Y, Z, VX, VY, VZ, undefined, _W) ->
+    <<Bin/binary, X:64/float, Y:64/float, Z:64/float, VX:64/float, VY:64/float, VZ:64/float>>;
+append(Bin, X, Y, Z, VX, VY, VZ, {{QX, QY, QZ}, QW}, {WX, WY, WZ}) ->
+    <<Bin/binary, X:64/float, Y:64/float, Z:64/float, VX:64/float, VY:64/float, VZ:64/float,
+      QX:64/float, QY:64/float, QZ:64/float, QW:64/float, WX:64/float, WY:64/float, WZ:64/float>>.
 
 chain(T, _States, Last, _Ctx, Island, Passed, Bins) when T >= Last ->
     {lists:reverse(Passed), Bins, Island};

@@ -13,7 +13,7 @@
 %% skip substeps at which two bodies are too far apart to touch.
 -module(rw_states).
 -include_lib("rw_physics/include/rw_physics.hrl").
--export([pack/4, append/4, seal/3, count/1, position/2, state/2, displacement/2, extents/1, reach/1, first_touch/6]).
+-export([pack/4, packed/4, append/4, seal/3, count/1, position/2, state/2, displacement/2, extents/1, reach/1, first_touch/6]).
 -export_type([packed/0, extents/0]).
 
 %% The box of the positions: {X0, Y0, Z0, X1, Y1, Z1}.
@@ -63,6 +63,11 @@ pack([#st{p = {X, Y, Z}} = St | Rest], Disps, Rot, Bin, PX, PY, PZ, X0, Y0, Z0, 
          if X < X0 -> X; true -> X0 end, if Y < Y0 -> Y; true -> Y0 end, if Z < Z0 -> Z; true -> Z0 end,
          if X > X1 -> X; true -> X1 end, if Y > Y1 -> Y; true -> Y1 end, if Z > Z1 -> Z; true -> Z1 end,
          if Reach =:= undefined -> undefined; Step > Reach -> Step; true -> Reach end).
+
+%% States appended to Bin (append/4, without CCD) packed with the box of
+%% their positions and their reach, measured as pack/4 measures them.
+-spec packed(binary(), boolean(), extents(), float()) -> packed().
+packed(Bin, Rotation, Extents, Reach) -> {record_size(Rotation, false), Rotation, false, Bin, Extents, Reach}.
 
 %% One more state (with CCD, and its free displacement) at the end of Bin.
 %% A step's states are appended as they are computed: the binary grows in

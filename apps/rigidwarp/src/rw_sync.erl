@@ -5,7 +5,7 @@
 %% advances from one sync point to the next once every body has committed
 %% it; a body that waits for GVT asks to be woken at a sync point.
 -module(rw_sync).
--export([new/4, new/5, start/1, is_sync/2, is_frame/2, after_gvt/2, last_before/2, end_t/1, period/1]).
+-export([new/4, new/5, start/1, is_sync/2, next_at/2, is_frame/2, after_gvt/2, last_before/2, end_t/1, period/1]).
 -export_type([calendar/0]).
 
 -record(cal, {
@@ -42,6 +42,14 @@ period(#cal{period = P}) -> P.
 -spec is_sync(non_neg_integer(), calendar()) -> boolean().
 is_sync(T, #cal{frame = F, stride = S, end_t = End, period = P}) ->
     T rem F =:= 0 orelse T rem S =:= 0 orelse T =:= End orelse (P > 0 andalso T rem P =:= 0).
+
+%% The first sync point at or after T (is_sync/2 is true there and at
+%% none between T and it); none past the end.
+-spec next_at(non_neg_integer(), calendar()) -> non_neg_integer() | none.
+next_at(T, #cal{end_t = End}) when T > End -> none;
+next_at(T, #cal{frame = F, stride = S, end_t = End, period = P}) ->
+    Up = fun(D) -> (T + D - 1) div D * D end,
+    lists:min([Up(F), Up(S), End | [Up(P) || P > 0]]).
 
 %% Frames are written at frame times and at the end only.
 -spec is_frame(non_neg_integer(), calendar()) -> boolean().

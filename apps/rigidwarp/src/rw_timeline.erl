@@ -12,7 +12,7 @@
 %% their contacts (rw_island), never updated in place.
 -module(rw_timeline).
 -export([new/0, add_write/5, state_at/3, where_after/2, truncate/2, prune/2,
-         contacts_at/2, put_contacts/3, external/2,
+         contacts_at/2, put_contacts/3, external/2, contact_times/3,
          is_committed/2, commit/2, withdraw/2]).
 -export_type([timeline/0, known/0]).
 
@@ -78,6 +78,12 @@ external(T, #tl{contacts = C}) ->
         #{T := AtT} -> [{Member, {{Partner, 0}, E}} || {Member, Partner, E} <- maps:values(AtT)];
         _ -> []
     end.
+
+%% The times in [From, To) with known contacts, ascending.
+-spec contact_times(non_neg_integer(), non_neg_integer(), timeline()) -> [non_neg_integer()].
+contact_times(_From, _To, #tl{contacts = C}) when map_size(C) =:= 0 -> [];
+contact_times(From, To, #tl{contacts = C}) ->
+    lists:sort([T || {T, AtT} <- maps:to_list(C), T >= From, T < To, map_size(AtT) > 0]).
 
 -spec is_committed(non_neg_integer(), timeline()) -> boolean().
 is_committed(T, #tl{committed = C}) -> lists:member(T, C).

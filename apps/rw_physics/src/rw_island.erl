@@ -24,7 +24,7 @@
 %% its move from the anchor, not the six walls, at each substep.
 -module(rw_island).
 -include("rw_physics.hrl").
--export([new/3, size/1, posts/3, step/3, post/3, advance/3]).
+-export([new/3, size/1, posts/3, step/3, post/3, advance/3, free_zone/1]).
 -export_type([island/0, external/0]).
 -include("rw_vec_inline.hrl").
 
@@ -139,6 +139,18 @@ post(#island{model = #model{ccd = false} = M, spheres = {S}, near = {Near}, fanc
 post(#island{model = M, spheres = {S}} = I0, St, External) ->
     #island{near = {Near}} = I = fixtures_near(I0, {St}, displacements(M, {St})),
     {alone(M, S, St, Near, External), I}.
+
+%% Where the one member of an island of one touches no fixture: post/3
+%% then gives its own velocities back (with no outside contact) and keeps
+%% the island as it is. always: the scene has no fixture; {X, Y, Z, L2}:
+%% while its centre is within squared distance L2 of {X, Y, Z} (the test
+%% post/3 makes, the same operations); none: post/3 must say.
+-spec free_zone(island()) -> always | {float(), float(), float(), float()} | none.
+free_zone(#island{spheres = {_}, fixtures = []}) -> always;
+free_zone(#island{model = #model{ccd = false}, spheres = {_}, near = {[]}, fanchors = {{AX, AY, AZ}}, flimit = Limit})
+  when is_float(Limit) ->
+    {AX, AY, AZ, Limit * Limit};
+free_zone(_) -> none.
 
 alone(_M, _S, St, [], []) -> rw_dynamics:respond(St, []);
 alone(M, S, St, Fixtures, []) -> respond(St, rw_dynamics:fixture_effects(M, S, St, Fixtures), []);

@@ -1,0 +1,72 @@
+%% rw_chain:run/5 steps a body on its own through a fast path while it
+%% flies free; rw_chain:run_each/5 steps it substep by substep through its
+%% island. Both must give the same states, sync points and island, bit for
+%% bit: in free flight with and without gravity (each integrator) and
+%% rotation, bouncing on a floor and in a box mid-step, with a known
+%% contact with the outside, from a group's start, across sync points.
+-module(rw_chain_tests).
+-include_lib("eunit/include/eunit.hrl").
+-include_lib("rigidwarp/include/rigidwarp.hrl").
+
+-define(CASES, 60).
+
+models() ->
+    [#model{},
+     #model{gravity = {0.0, -9.81, 0.0}},
+     #model{gravity = {0.0, -9.81, 0.0}, integrator = explicit_euler},
+     #model{gravity = {0.3, -9.81, 0.1}, integrator = verlet},
+     #model{gravity = {0.0, -9.81, 0.0}, rotation = true, friction = 0.6, restitution = 0.2},
+     #model{rotation = true, friction = 0.3}].
+
+sceneries() ->
+    [[],
+     [rw_shape:fixture(0, <<"floor">>, {plane, {0.0, 1.0, 0.0}, 0.0})],
+     [rw_shape:fixture(0, <<"box">>, {box, {0.0, 0.0, 0.0}, {1.5, 1.5, 1.5}, hollow})]].
+
+fast_path_equals_each_substep_test_() ->
+    rand:seed(exsss, 2013),
+    [{lists:flatten(io_lib:format("model ~b, scenery ~b, case ~b", [Mi, Fi, C])),
+      ?_assert(same(Case))}
+     || {Mi, M} <- lists:enumerate(models()), {Fi, Fx} <- lists:enumerate(sceneries()), C <- lists:seq(1, ?CASES div 6),
+        Case <- [a_case(M, Fx)]].
+
+same({T, St, Last, Ctx, Island}) ->
+    Fast = rw_chain:run(T, {St}, Last, Ctx, Island),
+    Each = rw_chain:run_each(T, St, Last, Ctx, Island),
+    term_to_binary(Fast) =:= term_to_binary(Each).
+
+%% A sphere near the floor or a wall, falling or flying towards it fast
+%% enough to touch it within the step, perhaps with a known contact with
+%% another body at some substep and from a group's start.
+a_case(#model{rotation = Rot} = M, Fixtures) ->
+    R = 0.1 + 0.2 * rand:uniform(),
+    Sphere = #sphere{idx = 7, id = <<"s">>, radius = R, mass = 1.0, inv_mass = 1.0,
+                     inv_inertia = 1.0 / (0.4 * R * R)},
+    P = {u(-1.0, 1.0), R + u(0.0, 0.3), u(-1.0, 1.0)},
+    V = {u(-8.0, 8.0), u(-8.0, 8.0), u(-8.0, 8.0)},
+    St = case Rot of
+             true -> #st{p = P, v = V, q = rw_quat:identity(), w = {u(-5.0, 5.0), u(-5.0, 5.0), 0.0}};
+             false -> #st{p = P, v = V}
+         end,
+    T = rand:uniform(100),
+    Last = T + rand:uniform(64),
+    Contacts = case rand:uniform(3) of
+                   1 -> [];
+                   _ -> [T + rand:uniform(Last - T) - 1]
+               end,
+    TL = lists:foldl(fun(TC, Acc) ->
+                             Effect = {{u(-1.0, 1.0), 0.5, 0.0}, case Rot of true -> {0.0, 1.0, 0.0}; false -> undefined end,
+                                       {0.0, 0.0, 0.0}},
+                             rw_timeline:put_contacts(TC, #{{TC, 3, 7, make_ref()} => {7, 3, Effect}}, Acc)
+                     end, rw_timeline:new(), Contacts),
+    Base = case rand:uniform(3) of
+               1 -> {T, {rw_dynamics:respond(St, [])}};
+               _ -> none
+           end,
+    Cal = rw_sync:new(10, 64, Last + rand:uniform(2) - 1, lists:nth(rand:uniform(2), [0, 10])),
+    Island0 = rw_island:new(M, [Sphere], Fixtures),
+    %% an island that has stepped before, with its fixtures listed
+    {_, _, Island} = rw_chain:run_each(T, St, T + 1, {M, 1, none, rw_timeline:new(), Cal}, Island0),
+    {T, St, Last, {M, 1, Base, TL, Cal}, lists:nth(rand:uniform(2), [Island0, Island])}.
+
+u(Lo, Hi) -> Lo + (Hi - Lo) * rand:uniform().
