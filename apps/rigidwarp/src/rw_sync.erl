@@ -48,8 +48,14 @@ is_sync(T, #cal{frame = F, stride = S, end_t = End, period = P}) ->
 -spec next_at(non_neg_integer(), calendar()) -> non_neg_integer() | none.
 next_at(T, #cal{end_t = End}) when T > End -> none;
 next_at(T, #cal{frame = F, stride = S, end_t = End, period = P}) ->
-    Up = fun(D) -> (T + D - 1) div D * D end,
-    lists:min([Up(F), Up(S), End | [Up(P) || P > 0]]).
+    %% (called at every sync point a body passes: arithmetic, no lists)
+    Frame = (T + F - 1) div F * F,
+    Stride = (T + S - 1) div S * S,
+    Regroup = case P of
+                  0 -> End;
+                  _ -> (T + P - 1) div P * P
+              end,
+    min(min(Frame, Stride), min(Regroup, End)).
 
 %% Frames are written at frame times and at the end only.
 -spec is_frame(non_neg_integer(), calendar()) -> boolean().

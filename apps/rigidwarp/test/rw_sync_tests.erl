@@ -35,3 +35,11 @@ no_groups_test() ->
     C = rw_sync:new(10, 16, 100, 0),
     ?assertEqual(16, rw_sync:after_gvt(10, C)),
     ?assertNot(rw_sync:is_sync(25, C)).
+
+%% The next sync point at or after each time is the first time from there
+%% at which is_sync/2 holds, with and without regroup points; none past the
+%% end.
+next_at_test() ->
+    [?assertEqual(hd([S || S <- lists:seq(T, 150), rw_sync:is_sync(S, C)]), rw_sync:next_at(T, C))
+     || C <- [cal(), rw_sync:new(10, 16, 100, 0), rw_sync:new(7, 64, 150, 0)], T <- lists:seq(0, rw_sync:end_t(C))],
+    ?assertEqual(none, rw_sync:next_at(151, cal())).
