@@ -19,10 +19,10 @@
 
 %% The members' states after T up to Last (per member, rw_states:packed()
 %% of one state per substep), the sync points passed on the way, and the
-%% island with its neighbour list. A body alone without CCD flies free
-%% through flight/25; a group, and a body with CCD, append each member's
-%% states to a binary as they compute them (a body with CCD keeps them in
-%% a list and packs them at the end, a step of at most a stride), so that
+%% island with its neighbour list. A body alone flies free through
+%% flight/25 (with CCD it is stepped substep by substep, its states kept
+%% in a list and packed at the end: a step of at most a stride); a group
+%% appends each member's states to a binary as it computes them, so that
 %% the states of a long step are never on the heap for the garbage
 %% collector to copy.
 -spec run(non_neg_integer(), tuple(), non_neg_integer(), context(), rw_island:island()) ->
