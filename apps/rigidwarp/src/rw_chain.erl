@@ -103,14 +103,9 @@ flight(T, _X, _Y, _Z, _VX, _VY, _VZ, _Q, _W, Last, _Ctx, _Zone, Island, _Sync, _
 flight(T, X, Y, Z, VX, VY, VZ, Q, W, Last, {#model{dt = Dt, gravity = G, integrator = Int}, DtT, _, _, Cal} = Ctx,
        Zone, Island, Sync, Busy, Passed0, Bin, First, X0, Y0, Z0, X1, Y1, Z1, Reach)
   when is_float(X), is_float(Y), is_float(Z), is_float(VX), is_float(VY), is_float(VZ), is_float(Dt) ->
-    {Passed, NX, NY, NZ, NVX, NVY, NVZ, NQ, NW, Zone1, Island1} =
+    {Post, NX, NY, NZ, NVX, NVY, NVZ, NQ, NW, Zone1, Island1} =
         case is_free(T, X, Y, Z, Zone, Busy) of
             true ->
-                Pd = case T =:= Sync of
-                         true -> [{T, {#st{p = {X, Y, Z}, v = {VX, VY, VZ}, q = Q, w = W}},
-                                   {{{VX, VY, VZ}, W, {0.0, 0.0, 0.0}}}} | Passed0];
-                         false -> Passed0
-                     end,
                 {AX, AY, AZ, AVX, AVY, AVZ} =
                     case G of
                         undefined ->
@@ -130,20 +125,25 @@ flight(T, X, Y, Z, VX, VY, VZ, Q, W, Last, {#model{dt = Dt, gravity = G, integra
                          undefined -> Q;
                          _ -> rw_quat:integrate(Q, W, Dt)
                      end,
-                {Pd, AX, AY, AZ, AVX, AVY, AVZ, AQ, W, Zone, Island};
+                {free, AX, AY, AZ, AVX, AVY, AVZ, AQ, W, Zone, Island};
             false ->
                 St = #st{p = {X, Y, Z}, v = {VX, VY, VZ}, q = Q, w = W},
-                {Post, #st{p = {AX, AY, AZ}, v = {AVX, AVY, AVZ}, q = AQ, w = AW}, I1} = substep(T, St, Ctx, Island),
-                Pd = case T =:= Sync of
-                         true -> [{T, {St}, {Post}} | Passed0];
-                         false -> Passed0
-                     end,
-                {Pd, AX, AY, AZ, AVX, AVY, AVZ, AQ, AW, rw_island:free_zone(I1), I1}
+                {P, #st{p = {AX, AY, AZ}, v = {AVX, AVY, AVZ}, q = AQ, w = AW}, I1} = substep(T, St, Ctx, Island),
+                {P, AX, AY, AZ, AVX, AVY, AVZ, AQ, AW, rw_island:free_zone(I1), I1}
         end,
-    Sync1 = case T =:= Sync of
-                true -> rw_sync:next_at(T + DtT, Cal);
-                false -> Sync
-            end,
+    {Passed, Sync1} =
+        case T =:= Sync of
+            true ->
+                %% (a free body's post-response velocities are its own)
+                SyncPost = case Post of
+                               free -> {{VX, VY, VZ}, W, {0.0, 0.0, 0.0}};
+                               _ -> Post
+                           end,
+                {[{T, {#st{p = {X, Y, Z}, v = {VX, VY, VZ}, q = Q, w = W}}, {SyncPost}} | Passed0],
+                 rw_sync:next_at(T + DtT, Cal)};
+            false ->
+                {Passed0, Sync}
+        end,
     Busy1 = case Busy of
                 [T | More] -> More;
                 _ -> Busy

@@ -65,9 +65,8 @@ is_frame(T, #cal{frame = F, end_t = End}) -> T rem F =:= 0 orelse T =:= End.
 %% cannot pass it before every body has reached it.
 -spec after_gvt(integer(), calendar()) -> non_neg_integer().
 after_gvt(G, #cal{start = Start}) when G < Start -> Start;
-after_gvt(G, #cal{frame = F, stride = S, period = P, end_t = End}) ->
-    Regroup = case P of 0 -> End; _ -> (G div P + 1) * P end,
-    lists:min([(G div F + 1) * F, (G div S + 1) * S, Regroup, End]).
+after_gvt(G, #cal{end_t = End}) when G >= End -> End;
+after_gvt(G, Cal) -> next_at(G + 1, Cal).
 
 %% The last frame time, multiple of the stride or regroup point at or
 %% before T.
