@@ -8,13 +8,66 @@
 %% back meanwhile).
 -module(rw_commits).
 -include("rigidwarp.hrl").
--export([commit/3, withdraw/3, complete/2, count/2, records_at/2, forget_through/2, forget/2, select_at/2, states_at/2, delete_at/2, keep_only/2]).
+-export([record/8, unpack/1, motions_at/3, commit/3, withdraw/3, complete/2, count/2, records_at/2, forget_through/2, forget/2, select_at/2, states_at/2, delete_at/2, keep_only/2]).
 -export_type([record/0]).
 
-%% A body's committed state at a sync point, keyed by time and idx: its
-%% frame record and its pre-response velocities (v, w).
--type record() :: {{non_neg_integer(), non_neg_integer()}, rw_reference:body_frame(),
-                   {rw_vec:vec(), rw_vec:vec() | undefined}}.
+%% A body's committed state at a sync point, keyed by time and idx: its id
+%% and its frame record with its pre-response velocities (v, w), packed
+%% (record/8): a table of tens of thousands of bodies' records takes them
+%% at every frame, and a flat binary is copied in and out of it at a
+%% fraction of the cost of a tree of boxed floats. Floats are stored as
+%% IEEE doubles, bit for bit.
+-type record() :: {{non_neg_integer(), non_neg_integer()}, binary(), binary()}.
+
+%% Whether the record holds an orientation and angular velocities, and
+%% whether its velocities after the responses differ from those before.
+-define(ROTATION, 1).
+-define(RESPONDED, 2).
+
+%% The record of body Idx (id Id) at sync point T: position P, velocities
+%% V and W after the responses at T, orientation Q, velocities V0 and W0
+%% before them (W, Q and W0 undefined without rotation).
+-spec record(non_neg_integer(), non_neg_integer(), binary(), rw_vec:vec(), rw_vec:vec(),
+             rw_quat:quat() | undefined, rw_vec:vec() | undefined, {rw_vec:vec(), rw_vec:vec() | undefined}) -> record().
+record(T, Idx, Id, {PX, PY, PZ}, {VX, VY, VZ} = V, undefined, undefined, {{AX, AY, AZ} = V0, undefined}) ->
+    Bin = case same(V, V0) of
+              true -> <<0, PX:64/float, PY:64/float, PZ:64/float, VX:64/float, VY:64/float, VZ:64/float>>;
+              false -> <<?RESPONDED, PX:64/float, PY:64/float, PZ:64/float, VX:64/float, VY:64/float, VZ:64/float,
+                         AX:64/float, AY:64/float, AZ:64/float>>
+          end,
+    {{T, Idx}, Id, Bin};
+record(T, Idx, Id, {PX, PY, PZ}, {VX, VY, VZ} = V, {{QX, QY, QZ}, QW}, {WX, WY, WZ} = W,
+       {{AX, AY, AZ} = V0, {BX, BY, BZ} = W0}) ->
+    Head = <<PX:64/float, PY:64/float, PZ:64/float, VX:64/float, VY:64/float, VZ:64/float,
+             QW:64/float, QX:64/float, QY:64/float, QZ:64/float, WX:64/float, WY:64/float, WZ:64/float>>,
+    Bin = case same(V, V0) andalso same(W, W0) of
+              true -> <<?ROTATION, Head/binary>>;
+              false -> <<(?ROTATION bor ?RESPONDED), Head/binary, AX:64/float, AY:64/float, AZ:64/float,
+                         BX:64/float, BY:64/float, BZ:64/float>>
+          end,
+    {{T, Idx}, Id, Bin}.
+
+%% Bit for bit the same vector (=:= and a match take -0.0 for 0.0).
+same({X, Y, Z}, {X1, Y1, Z1}) ->
+    <<X:64/float, Y:64/float, Z:64/float>> =:= <<X1:64/float, Y1:64/float, Z1:64/float>>.
+
+%% The frame record and the pre-response velocities a record holds.
+-spec unpack(record()) -> {rw_reference:body_frame(), {rw_vec:vec(), rw_vec:vec() | undefined}}.
+unpack({_, Id, <<Flags, PX:64/float, PY:64/float, PZ:64/float, VX:64/float, VY:64/float, VZ:64/float, More/binary>>}) ->
+    P = {PX, PY, PZ},
+    V = {VX, VY, VZ},
+    case {Flags, More} of
+        {0, <<>>} -> {{Id, P, V, undefined, undefined}, {V, undefined}};
+        {?RESPONDED, <<AX:64/float, AY:64/float, AZ:64/float>>} -> {{Id, P, V, undefined, undefined}, {{AX, AY, AZ}, undefined}};
+        {_, <<QW:64/float, QX:64/float, QY:64/float, QZ:64/float, WX:64/float, WY:64/float, WZ:64/float, Pre/binary>>} ->
+            W = {WX, WY, WZ},
+            Frame = {Id, P, V, {{QX, QY, QZ}, QW}, W},
+            case Pre of
+                <<>> -> {Frame, {V, W}};
+                <<AX:64/float, AY:64/float, AZ:64/float, BX:64/float, BY:64/float, BZ:64/float>> ->
+                    {Frame, {{AX, AY, AZ}, {BX, BY, BZ}}}
+            end
+    end.
 
 %% Commit the records of an entity's members at sync point T.
 -spec commit(#sim{}, non_neg_integer(), [record()]) -> ok.
@@ -66,14 +119,24 @@ forget(#sim{counts = Counts}, T) ->
 %% The records committed at sync point T, in idx order: one per body once
 %% GVT has passed T.
 -spec select_at(non_neg_integer(), ets:tid()) -> [rw_reference:body_frame()].
-select_at(T, Records) -> ets:select(Records, [{{{T, '_'}, '$1', '_'}, [], ['$1']}]).
+select_at(T, Records) -> [element(1, unpack(R)) || R <- records_at(T, Records)].
+
+%% The positions and post-response velocities of the bodies Idxs (all:
+%% every body) at sync point T, once GVT has passed T: {Idx, P, V} in idx
+%% order.
+-spec motions_at(non_neg_integer(), all | [non_neg_integer()], ets:tid()) -> [{non_neg_integer(), rw_vec:vec(), rw_vec:vec()}].
+motions_at(T, all, Records) -> [motion(R) || R <- records_at(T, Records)];
+motions_at(T, Idxs, Records) -> [motion(R) || Idx <- Idxs, R <- ets:lookup(Records, {T, Idx})].
+
+motion({{_, Idx}, _, <<_, PX:64/float, PY:64/float, PZ:64/float, VX:64/float, VY:64/float, VZ:64/float, _/binary>>}) ->
+    {Idx, {PX, PY, PZ}, {VX, VY, VZ}}.
 
 %% Every body's whole pre-response state at sync point T, in idx order
 %% (once GVT has passed T): what a run resumed from T starts with.
 -spec states_at(non_neg_integer(), ets:tid()) -> [#st{}].
 states_at(T, Records) ->
     [#st{p = P, v = V, q = Q, w = W}
-     || {_, {_, P, _, Q, _}, {V, W}} <- records_at(T, Records)].
+     || R <- records_at(T, Records), {{_, P, _, Q, _}, {V, W}} <- [unpack(R)]].
 
 %% GVT has passed G: forget the counts and records of every sync point up
 %% to G.

@@ -546,7 +546,7 @@ commit_now(T, States, Posts, #e{g = #g{spheres = Spheres}, timeline = TL} = E) -
                    #sphere{idx = Idx, id = Id} = element(K, Spheres),
                    #st{p = P, v = V0, q = Q, w = W0} = element(K, States),
                    {V, W, _U} = element(K, Posts),
-                   {{T, Idx}, {Id, P, V, Q, W}, {V0, W0}}
+                   rw_commits:record(T, Idx, Id, P, V, Q, W, {V0, W0})
                end || K <- lists:seq(1, tuple_size(Spheres))],
     emit({commit, T, Records}, E#e{timeline = rw_timeline:commit(T, TL)}).
 

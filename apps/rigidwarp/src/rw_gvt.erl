@@ -63,7 +63,6 @@
     checkpoint_ms :: non_neg_integer(),
     checkpoint_due :: integer(),              % monotonic ms
     radii :: #{non_neg_integer() => float()},
-    idxs :: [non_neg_integer()],                        % every body's idx, ascending
     groups :: rw_regroup:groups(),                      % the groups planned last
     pids = none :: none | #{non_neg_integer() => pid()},  % body idx => its process, once needed
     %% regroup points with entities that have not answered {regroup, S, _} yet
@@ -114,7 +113,7 @@ init({#sim{scene = #scene{spheres = Spheres, model = #model{gravity = Gravity}},
     Idxs = lists:sort([I || #sphere{idx = I} <- Spheres]),
     Every = maps:get(checkpoint_ms, Opts, ?CHECKPOINT_MS),
     {ok, #s{sim = Sim, run = maps:get(run, Opts, undefined), frames = maps:get(frames, Opts, false),
-            ring_size = maps:get(ring_size, Opts, 1024), idxs = Idxs, checkpoint_ms = Every,
+            ring_size = maps:get(ring_size, Opts, 1024), checkpoint_ms = Every,
             checkpoint_due = erlang:monotonic_time(millisecond) + Every,
             radii = maps:from_list([{I, R} || #sphere{idx = I, radius = R} <- Spheres]),
             groups = rw_regroup:new(Idxs, Max, Mode, Gravity =/= undefined)}}.
@@ -286,7 +285,7 @@ regroup(X, P, #s{sim = #sim{stats = Stats}, groups = Groups} = S00) ->
             S0;
         false ->
             #s{pids = Pids} = S = with_pids(S0),
-            {Tell, Groups1} = rw_regroup:decide(committed(X, S), Met, Pids, Groups),
+            {Tell, Groups1} = rw_regroup:decide(committed(X, rw_regroup:wanted(Met, Groups), S), Met, Pids, Groups),
             At = X + P,
             Moves = [{maps:get(I, Pids), {regroup, At, Move}} || {I, Move} <- Tell],
             Told = [Pid || {Pid, _} <- Moves],
@@ -443,9 +442,10 @@ publish(_G0, #s{gvt = G, sim = #sim{end_t = End} = Sim, multi = M, passed = Pass
 with_pids(#s{pids = none, sim = #sim{procs = Procs}} = S) -> S#s{pids = maps:from_list(ets:tab2list(Procs))};
 with_pids(S) -> S.
 
-%% Every body's committed state at sync point X: {Idx, Radius, P, V}.
-committed(X, #s{sim = #sim{records = Records}, radii = Radii, idxs = Idxs}) ->
-    [{I, maps:get(I, Radii), Pos, V} || {I, {_, Pos, V, _, _}} <- lists:zip(Idxs, rw_commits:select_at(X, Records))].
+%% The committed states of bodies Idxs (all: every body) at sync point X:
+%% {Idx, Radius, P, V}.
+committed(X, Idxs, #s{sim = #sim{records = Records}, radii = Radii}) ->
+    [{I, maps:get(I, Radii), Pos, V} || {I, Pos, V} <- rw_commits:motions_at(X, Idxs, Records)].
 
 
 notify(undefined, _) -> ok;

@@ -28,7 +28,7 @@
 %% decide/4 is what the GVT process does at a regroup point: the groups
 %% from the committed states, and whom to tell what; it carries that out.
 -module(rw_regroup).
--export([new/3, new/4, by_site/2, quiet/2, decide/4, plan/4, plan/5, moves/3]).
+-export([new/3, new/4, by_site/2, quiet/2, wanted/2, decide/4, plan/4, plan/5, moves/3]).
 -export_type([body/0, leaders/0, move/0, pairs/0, groups/0]).
 
 %% A body's committed state at the regroup point: idx, radius, position,
@@ -52,7 +52,8 @@
 %% The groups of a simulation as planned last: every body alone at first.
 -record(groups, {
     leaders :: leaders(),
-    grouped = false :: boolean(),            % any group of two bodies or more
+    %% the bodies in groups of two or more, as a set
+    members = #{} :: #{non_neg_integer() => true},
     max :: pos_integer(),
     mode :: persistent | eager,              % eager: tests only
     %% under gravity: a body closing in on a group joins it (landing)
@@ -81,26 +82,43 @@ by_site(G, Sites) -> G#groups{sites = Sites}.
 %% Without a group and without a pair that met often nothing can change:
 %% no need to read the committed states.
 -spec quiet(pairs(), groups()) -> boolean().
-quiet(Met, #groups{mode = Mode, grouped = Grouped}) ->
-    Mode =:= persistent andalso not Grouped andalso map_size(Met) =:= 0.
+quiet(Met, #groups{mode = Mode, members = Members}) ->
+    Mode =:= persistent andalso map_size(Members) =:= 0 andalso map_size(Met) =:= 0.
+
+%% The bodies whose committed states decide/4 needs, in idx order: every
+%% body when one may land on a group (or eagerly, in tests), else only the
+%% members of groups and the bodies of pairs that met. Any other is alone
+%% and met nobody, and stays alone: in a gas of tens of thousands of
+%% spheres the GVT process, which every body waits for, reads a few
+%% hundred records at a regroup point instead of all of them.
+-spec wanted(pairs(), groups()) -> all | [non_neg_integer()].
+wanted(_Met, #groups{mode = eager}) -> all;
+wanted(_Met, #groups{landing = true, members = Members}) when map_size(Members) > 0 -> all;
+wanted(Met, #groups{members = Members}) -> lists:sort(maps:keys(seen(Met, Members))).
 
 %% At a regroup point: the groups from every body's committed state there
 %% and the pairs that met often lately, and what each entity whose group
 %% changes must do at the next regroup point ({Idx, Move}: tell the process
 %% of body Idx). Pids maps idx to body process.
 -spec decide([body()], pairs(), #{non_neg_integer() => pid()}, groups()) -> {[{non_neg_integer(), move()}], groups()}.
-decide(Bodies, Met, Pids, #groups{leaders = Old, max = Max, mode = Mode, landing = Landing, sites = Sites} = G) ->
+decide(Bodies, Met, Pids, #groups{leaders = Old, members = Members, max = Max, mode = Mode, landing = Landing,
+                                  sites = Sites} = G) ->
     Pairs = case Mode of eager -> eager; persistent -> Met end,
-    New = case Sites of
-              none -> plan(Bodies, Old, Max, Pairs, Landing);
-              _ ->
-                  BySite = maps:groups_from_list(fun({I, _, _, _}) -> maps:get(I, Sites) end, Bodies),
-                  maps:fold(fun(_, Share, Acc) -> maps:merge(Acc, plan(Share, Old, Max, Pairs, Landing)) end,
-                            #{}, BySite)
-          end,
-    Moves = moves(Old, New, Pids),
+    %% the new leaders of Bodies, wanted/2's bodies or more: every other
+    %% body is alone and stays so
+    Planned = case Sites of
+                  none -> plan(Bodies, Old, Members, Max, Pairs, Landing);
+                  _ ->
+                      BySite = maps:groups_from_list(fun({I, _, _, _}) -> maps:get(I, Sites) end, Bodies),
+                      maps:fold(fun(_, Share, Acc) -> maps:merge(Acc, plan(Share, Old, Members, Max, Pairs, Landing)) end,
+                                #{}, BySite)
+              end,
+    Moves = moves(maps:with(maps:keys(Planned), Old), Planned, Pids),
+    New = maps:fold(fun(I, L, Acc) -> Acc#{I := L} end, Old, Planned),
     {[{I, Move} || {I, #{send := _} = Move} <- maps:to_list(Moves)],
-     G#groups{leaders = New, grouped = lists:any(fun({I, L}) -> I =/= L end, maps:to_list(New))}}.
+     G#groups{leaders = New, members = maps:fold(fun(I, L, Acc) when I =/= L -> Acc#{I => true, L => true};
+                                                   (_, _, Acc) -> Acc
+                                                end, #{}, Planned)}}.
 
 %% The groups from Bodies, the current groups and the pairs that met at
 %% many substeps lately (eager: tests).
@@ -109,10 +127,11 @@ plan(Bodies, Old, Max, Met) -> plan(Bodies, Old, Max, Met, false).
 
 %% ... and with Landing, bodies closing in on a group join it (new/4).
 -spec plan([body()], leaders(), pos_integer(), pairs() | eager, boolean()) -> leaders().
-plan(Bodies, Old, Max, Met, Landing) ->
+plan(Bodies, Old, Max, Met, Landing) -> plan(Bodies, Old, grouped(Old), Max, Met, Landing).
+
+plan(Bodies, Old, Grouped, Max, Met, Landing) ->
     %% (a body alone that met nobody stays alone, unless it is landing on
     %% a group: only the others can have an edge)
-    Grouped = grouped(Old),
     {Stay, Join} = edges(candidates(Bodies, Grouped, Met, Landing), Old, Grouped, Met, Landing),
     %% union-find over the bodies with an edge (any other is its own root)
     Uf1 = lists:foldl(fun({A, B}, U) -> union(A, B, Max, U) end, #{}, Stay),
@@ -159,9 +178,12 @@ candidates(Bodies, Grouped, Met, Landing) ->
     case Landing andalso map_size(Grouped) > 0 of
         true -> Bodies;
         false ->
-            Seen = maps:fold(fun({A, B}, _, Acc) -> Acc#{A => true, B => true} end, Grouped, Met),
+            Seen = seen(Met, Grouped),
             [B || {I, _, _, _} = B <- Bodies, is_map_key(I, Seen)]
     end.
+
+%% The bodies of a group or of a pair that met, as a set.
+seen(Met, Grouped) -> maps:fold(fun({A, B}, _, Acc) -> Acc#{A => true, B => true} end, Grouped, Met).
 
 %% Leader => sorted members.
 groups(Leaders) ->

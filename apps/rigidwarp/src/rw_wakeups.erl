@@ -1,26 +1,35 @@
 %% The entities waiting for GVT to reach some time (pure): a GVT process
 %% (rw_gvt on one node, rw_gvt_site on each of several) wakes them when it
-%% passes it. A few distinct times, each with up to every body: a list per
-%% time, ascending, where a set of {At, Pid} would hold an element per body.
+%% passes it. Each time with the entities waiting for it, in a tree by
+%% time: tens of thousands of bodies wait for hundreds of distinct times.
 -module(rw_wakeups).
 -export([new/0, add/3, wake/2]).
 -export_type([wakeups/0]).
 
--type wakeups() :: [{integer(), [pid()]}].
+-opaque wakeups() :: gb_trees:tree(integer(), [pid()]).
 
 -spec new() -> wakeups().
-new() -> [].
+new() -> gb_trees:empty().
 
 %% Pid waits for GVT At.
 -spec add(integer(), pid(), wakeups()) -> wakeups().
-add(At, Pid, [{A, _} = First | Rest]) when A < At -> [First | add(At, Pid, Rest)];
-add(At, Pid, [{At, Pids} | Rest]) -> [{At, [Pid | Pids]} | Rest];
-add(At, Pid, Later) -> [{At, [Pid]} | Later].
+add(At, Pid, W) ->
+    case gb_trees:lookup(At, W) of
+        {value, Pids} -> gb_trees:update(At, [Pid | Pids], W);
+        none -> gb_trees:insert(At, [Pid], W)
+    end.
 
-%% GVT is G: send {gvt, G} to every entity waiting for G or earlier; the
-%% others still wait.
+%% GVT is G: send {gvt, G} to every entity waiting for G or earlier (the
+%% earliest times first); the others still wait.
 -spec wake(integer(), wakeups()) -> wakeups().
-wake(G, [{At, Pids} | Rest]) when At =< G ->
-    _ = [rw_trace:send(Pid, {gvt, G}) || Pid <- Pids],
-    wake(G, Rest);
-wake(_G, Waiting) -> Waiting.
+wake(G, W) ->
+    case gb_trees:is_empty(W) of
+        true -> W;
+        false ->
+            case gb_trees:smallest(W) of
+                {At, Pids} when At =< G ->
+                    _ = [rw_trace:send(Pid, {gvt, G}) || Pid <- Pids],
+                    wake(G, gb_trees:delete(At, W));
+                _ -> W
+            end
+    end.

@@ -403,7 +403,7 @@ effect(I, {commit, T, Rows}, #m{records = R, counts = C, n = N, gp = #gvtp{g = G
             false -> fail(M0, {commit_at_or_before_gvt, I, T, G})
         end,
     Count = maps:get(T, C, 0) + length(Rows),
-    M1 = M#m{records = lists:foldl(fun({Key, F, _Pre}, Acc) -> Acc#{Key => F} end, R, Rows), counts = C#{T => Count}},
+    M1 = M#m{records = lists:foldl(fun({Key, _, _} = Row, Acc) -> Acc#{Key => element(1, rw_commits:unpack(Row))} end, R, Rows), counts = C#{T => Count}},
     case Count of
         N -> enqueue(I, gvt, {complete, T}, M1);
         _ -> M1
@@ -504,7 +504,10 @@ regroup(X, #m{cal = Cal} = M) ->
         P ->
             #m{met = Met0, gp = #gvtp{groups = Groups} = Gp, records = R, scene = #scene{spheres = Spheres}} = M,
             Met = maps:from_list([{Pair, true} || {Pair, T} <- maps:to_list(Met0), T >= X - P]),
+            %% (as rw_gvt: only the bodies the plan needs)
+            Wanted = rw_regroup:wanted(Met, Groups),
             Bodies = [{I, Rad, Pos, V} || #sphere{idx = I, radius = Rad} <- Spheres,
+                                          Wanted =:= all orelse lists:member(I, Wanted),
                                           {_, Pos, V, _, _} <- [maps:get({X, I}, R)]],
             Pids = maps:from_list([{I, I} || #sphere{idx = I} <- Spheres]),
             {Tell, Groups1} = rw_regroup:decide(Bodies, Met, Pids, Groups),

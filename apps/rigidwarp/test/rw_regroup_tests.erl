@@ -80,3 +80,34 @@ moves_test() ->
                    7 => #{gather => [3]}},
                  rw_regroup:moves(New, Old, Pids)),
     ?assertEqual(#{}, rw_regroup:moves(New, New, Pids)).
+
+%% The GVT process hands decide/4 only the bodies wanted/2 names (a gas
+%% of thousands reads a few hundred records); with every body instead,
+%% the moves and the groups are the same, round after round, as groups
+%% form, grow to the cap and break up.
+wanted_bodies_decide_as_all_do_test() ->
+    rand:seed(exsss, {24, 11, 26}),
+    Partial = [rounds(Landing, Max) || Landing <- [false, true], Max <- [3, 64]],
+    %% most rounds read only some of the bodies
+    ?assert(lists:sum(Partial) >= 40).
+
+rounds(Landing, Max) ->
+    Idxs = lists:seq(1, 60),
+    Pids = maps:from_list([{I, {pid, I}} || I <- Idxs]),
+    {_, Partial} =
+        lists:foldl(
+          fun(_, {G, P}) ->
+                  Bodies = [{I, 0.5, {8 * rand:uniform(), 8 * rand:uniform(), 0.0},
+                             {rand:uniform() - 0.5, rand:uniform() - 0.5, 0.0}} || I <- Idxs],
+                  Met = maps:from_list([{{A, B}, true} || {A, _, PA, _} <- Bodies, {B, _, PB, _} <- Bodies, A < B,
+                                                         rw_vec:len(rw_vec:sub(PA, PB)) < 1.2,
+                                                         rand:uniform() < 0.3]),
+                  Some = case rw_regroup:wanted(Met, G) of
+                             all -> Bodies;
+                             Wanted -> [B || {I, _, _, _} = B <- Bodies, lists:member(I, Wanted)]
+                         end,
+                  {Tell, G1} = rw_regroup:decide(Bodies, Met, Pids, G),
+                  ?assertEqual({Tell, G1}, rw_regroup:decide(Some, Met, Pids, G)),
+                  {G1, P + length([x || length(Some) < length(Bodies)])}
+          end, {rw_regroup:new(Idxs, Max, persistent, Landing), 0}, lists:seq(1, 20)),
+    Partial.

@@ -17,8 +17,8 @@ ring(Size, Ticks) ->
     {Ring, Records}.
 
 commit(Records, T) ->
-    true = ets:insert(Records, {{T, 0}, {<<"a">>, {float(T), 0.0, 0.0}, {0.0, 0.0, 0.0}, undefined, undefined},
-                                {{0.0, 0.0, 0.0}, undefined}}).
+    true = ets:insert(Records, rw_commits:record(T, 0, <<"a">>, {float(T), 0.0, 0.0}, {0.0, 0.0, 0.0}, undefined,
+                                                 undefined, {{0.0, 0.0, 0.0}, undefined})).
 
 restart_keeps_recommitted_records_test() ->
     {Ring, Records} = ring(1, [0, 10, 20, 30]),
@@ -44,7 +44,7 @@ truncate_keeps_older_frames_in_order_test() ->
     %% the oldest (20) went, in slot order
     ?assertEqual([30, 40, 50], lists:sort(rw_ring:ticks(Ring))),
     ?assertEqual([30, 40, 50], [T || {{T, 0}, _, _} <- ets:tab2list(Records)]),
-    ?assertEqual([{frame, T, [B]} || T <- [40, 50], [{_, B, _}] <- [ets:lookup(Records, {T, 0})]],
+    ?assertEqual([{frame, T, [B]} || T <- [40, 50], [R] <- [ets:lookup(Records, {T, 0})], {B, _} <- [rw_commits:unpack(R)]],
                  rw_ring:frames_after(Ring, 30, 10)).
 
 truncate_to_nothing_test() ->
