@@ -97,7 +97,8 @@
   bench scale [--counts N,N,...] [--until MS]
                              the cost of a body-substep as scenes grow: gases at Bouncing 500's
                              density of 500, 2000, 5000, 10000 and 20000 spheres (default), each
-                             run on every scheduler to MS (default 500): body-substeps per second,
+                             run on every scheduler to MS (default 500; small gases longer, to at
+                             least 5 million body-substeps): body-substeps per second,
                              over the run and once every body runs, and memory per body a
                              quarter, half and three quarters of the way. A markdown table, then
                              one JSON line
