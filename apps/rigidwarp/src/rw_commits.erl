@@ -1,6 +1,6 @@
 %% The committed states of one simulation, in two shared ETS tables: each
-%% body's record at each sync point it has committed ({{T, Idx}, Frame},
-%% ordered by time, then idx) and, per sync point, how many bodies have
+%% body's record at each sync point it has committed (record/0, ordered
+%% by time, then idx) and, per sync point, how many bodies have
 %% committed it ({T, Count, Withdrawals}). An entity commits a sync point once nothing it awaits is
 %% about an earlier time, and withdraws it when it rolls back; the commit
 %% that completes a sync point tells the GVT process, which checks the
@@ -12,17 +12,20 @@
 -export_type([record/0]).
 
 %% A body's committed state at a sync point, keyed by time and idx: its id
-%% and its frame record with its pre-response velocities (v, w), packed
-%% (record/8): a table of tens of thousands of bodies' records takes them
-%% at every frame, and a flat binary is copied in and out of it at a
-%% fraction of the cost of a tree of boxed floats. Floats are stored as
-%% IEEE doubles, bit for bit.
--type record() :: {{non_neg_integer(), non_neg_integer()}, binary(), binary()}.
+%% and its frame record with its pre-response velocities (v, w). Without
+%% rotation they are packed into a heap binary of 49 or 73 bytes (record/8;
+%% floats as IEEE doubles, bit for bit): a table of tens of thousands of
+%% bodies' records takes one per body and frame, and a flat binary is
+%% copied in and out of it at a fraction of the cost of a tree of boxed
+%% floats. With rotation the floats would not fit a heap binary (64 bytes
+%% at most): packing them cost more than it saved (Cylinders 500 used 6 %
+%% more CPU), and they stay tuples.
+-type record() :: {{non_neg_integer(), non_neg_integer()}, binary(),
+                   binary() | {rw_vec:vec(), rw_vec:vec(), rw_quat:quat(), rw_vec:vec(), rw_vec:vec(), rw_vec:vec()}}.
 
-%% Whether the record holds an orientation and angular velocities, and
-%% whether its velocities after the responses differ from those before.
--define(ROTATION, 1).
--define(RESPONDED, 2).
+%% A packed record's velocities after the responses differ from those
+%% before.
+-define(RESPONDED, 1).
 
 %% The record of body Idx (id Id) at sync point T: position P, velocities
 %% V and W after the responses at T, orientation Q, velocities V0 and W0
@@ -36,16 +39,8 @@ record(T, Idx, Id, {PX, PY, PZ}, {VX, VY, VZ} = V, undefined, undefined, {{AX, A
                          AX:64/float, AY:64/float, AZ:64/float>>
           end,
     {{T, Idx}, Id, Bin};
-record(T, Idx, Id, {PX, PY, PZ}, {VX, VY, VZ} = V, {{QX, QY, QZ}, QW}, {WX, WY, WZ} = W,
-       {{AX, AY, AZ} = V0, {BX, BY, BZ} = W0}) ->
-    Head = <<PX:64/float, PY:64/float, PZ:64/float, VX:64/float, VY:64/float, VZ:64/float,
-             QW:64/float, QX:64/float, QY:64/float, QZ:64/float, WX:64/float, WY:64/float, WZ:64/float>>,
-    Bin = case same(V, V0) andalso same(W, W0) of
-              true -> <<?ROTATION, Head/binary>>;
-              false -> <<(?ROTATION bor ?RESPONDED), Head/binary, AX:64/float, AY:64/float, AZ:64/float,
-                         BX:64/float, BY:64/float, BZ:64/float>>
-          end,
-    {{T, Idx}, Id, Bin}.
+record(T, Idx, Id, P, V, Q, W, {V0, W0}) ->
+    {{T, Idx}, Id, {P, V, Q, W, V0, W0}}.
 
 %% Bit for bit the same vector (=:= and a match take -0.0 for 0.0).
 same({X, Y, Z}, {X1, Y1, Z1}) ->
@@ -53,20 +48,13 @@ same({X, Y, Z}, {X1, Y1, Z1}) ->
 
 %% The frame record and the pre-response velocities a record holds.
 -spec unpack(record()) -> {rw_reference:body_frame(), {rw_vec:vec(), rw_vec:vec() | undefined}}.
-unpack({_, Id, <<Flags, PX:64/float, PY:64/float, PZ:64/float, VX:64/float, VY:64/float, VZ:64/float, More/binary>>}) ->
+unpack({_, Id, {P, V, Q, W, V0, W0}}) -> {{Id, P, V, Q, W}, {V0, W0}};
+unpack({_, Id, <<Flags, PX:64/float, PY:64/float, PZ:64/float, VX:64/float, VY:64/float, VZ:64/float, Pre/binary>>}) ->
     P = {PX, PY, PZ},
     V = {VX, VY, VZ},
-    case {Flags, More} of
+    case {Flags, Pre} of
         {0, <<>>} -> {{Id, P, V, undefined, undefined}, {V, undefined}};
-        {?RESPONDED, <<AX:64/float, AY:64/float, AZ:64/float>>} -> {{Id, P, V, undefined, undefined}, {{AX, AY, AZ}, undefined}};
-        {_, <<QW:64/float, QX:64/float, QY:64/float, QZ:64/float, WX:64/float, WY:64/float, WZ:64/float, Pre/binary>>} ->
-            W = {WX, WY, WZ},
-            Frame = {Id, P, V, {{QX, QY, QZ}, QW}, W},
-            case Pre of
-                <<>> -> {Frame, {V, W}};
-                <<AX:64/float, AY:64/float, AZ:64/float, BX:64/float, BY:64/float, BZ:64/float>> ->
-                    {Frame, {{AX, AY, AZ}, {BX, BY, BZ}}}
-            end
+        {?RESPONDED, <<AX:64/float, AY:64/float, AZ:64/float>>} -> {{Id, P, V, undefined, undefined}, {{AX, AY, AZ}, undefined}}
     end.
 
 %% Commit the records of an entity's members at sync point T.
@@ -128,6 +116,7 @@ select_at(T, Records) -> [element(1, unpack(R)) || R <- records_at(T, Records)].
 motions_at(T, all, Records) -> [motion(R) || R <- records_at(T, Records)];
 motions_at(T, Idxs, Records) -> [motion(R) || Idx <- Idxs, R <- ets:lookup(Records, {T, Idx})].
 
+motion({{_, Idx}, _, {P, V, _, _, _, _}}) -> {Idx, P, V};
 motion({{_, Idx}, _, <<_, PX:64/float, PY:64/float, PZ:64/float, VX:64/float, VY:64/float, VZ:64/float, _/binary>>}) ->
     {Idx, {PX, PY, PZ}, {VX, VY, VZ}}.
 
@@ -135,8 +124,7 @@ motion({{_, Idx}, _, <<_, PX:64/float, PY:64/float, PZ:64/float, VX:64/float, VY
 %% (once GVT has passed T): what a run resumed from T starts with.
 -spec states_at(non_neg_integer(), ets:tid()) -> [#st{}].
 states_at(T, Records) ->
-    [#st{p = P, v = V, q = Q, w = W}
-     || R <- records_at(T, Records), {{_, P, _, Q, _}, {V, W}} <- [unpack(R)]].
+    [#st{p = P, v = V, q = Q, w = W} || R <- records_at(T, Records), {{_, P, _, Q, _}, {V, W}} <- [unpack(R)]].
 
 %% GVT has passed G: forget the counts and records of every sync point up
 %% to G.

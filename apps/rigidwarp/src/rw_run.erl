@@ -168,7 +168,7 @@ init(Scene, Opts, Nodes) ->
 %% The frames the ring keeps unless asked otherwise: the latest
 %% ring_frames (the application's environment, 1024 by default), or fewer
 %% (but 16 at least) for scenes of many bodies, so that the ring holds at
-%% most 2^17 body records (about 200 bytes each, 370 with rotation: 26-48 MB).
+%% most 2^17 body records (about 200 bytes each, 430-710 with rotation: 26-90 MB).
 -define(RING_RECORDS, 1 bsl 17).
 -define(DEFAULT_RING_FRAMES, 1024).
 

@@ -13,8 +13,11 @@
 
 %% Tests per property; the whole suite takes a few seconds.
 -define(NUMTESTS, 1000).
-%% Cases a mutant of the island may survive (each is caught well before).
+%% Cases a mutant of the island may survive (each is usually caught well
+%% before), in up to three rounds: the cases are random, and the rarest
+%% mutant (full_skin) slipped through one round of 3000 now and then.
 -define(MUTANT_TESTS, 3000).
+-define(MUTANT_ROUNDS, 3).
 
 suite() -> [{timetrap, {minutes, 3}}].
 
@@ -76,16 +79,28 @@ island_mutants_are_caught(Config) ->
     Caught = [begin
                   1 = count(Text, From),
                   Mutant = compile_copy(Dir, string:replace(Text, From, To), list_to_atom("rw_island_" ++ atom_to_list(Name))),
-                  case proper:quickcheck(rw_physics_prop:prop_island_equals_all_pairs(Mutant),
-                                         [{numtests, ?MUTANT_TESTS}, noshrink, {to_file, user}, long_result]) of
-                      true -> ct:fail({mutant_survived, Name, From, To});
-                      [Counterexample] ->
-                          proper:global_state_erase(),
-                          ct:pal("~p (~s -> ~s) caught by ~P", [Name, From, To, Counterexample, 12]),
+                  case catch_mutant(Mutant, ?MUTANT_ROUNDS) of
+                      survived -> ct:fail({mutant_survived, Name, From, To});
+                      {Round, Counterexample} ->
+                          ct:pal("~p (~s -> ~s) caught in round ~b by ~P", [Name, From, To, Round, Counterexample, 12]),
                           Name
                   end
               end || {Name, From, To} <- island_mutations()],
     {comment, io_lib:format("~b mutants caught", [length(Caught)])}.
+
+%% The first counterexample to the island property with Mutant, within
+%% Rounds rounds of ?MUTANT_TESTS random cases each.
+catch_mutant(_Mutant, 0) -> survived;
+catch_mutant(Mutant, Rounds) ->
+    case proper:quickcheck(rw_physics_prop:prop_island_equals_all_pairs(Mutant),
+                           [{numtests, ?MUTANT_TESTS}, noshrink, {to_file, user}, long_result]) of
+        true ->
+            proper:global_state_erase(),
+            catch_mutant(Mutant, Rounds - 1);
+        [Counterexample] ->
+            proper:global_state_erase(),
+            {?MUTANT_ROUNDS - Rounds + 1, Counterexample}
+    end.
 
 %% {Name, Text, Replacement}: rules that, so broken, let a list miss a
 %% contact that a test of every pair finds.
