@@ -116,9 +116,7 @@ decide(Bodies, Met, Pids, #groups{leaders = Old, members = Members, max = Max, m
     Moves = moves(maps:with(maps:keys(Planned), Old), Planned, Pids),
     New = maps:fold(fun(I, L, Acc) -> Acc#{I := L} end, Old, Planned),
     {[{I, Move} || {I, #{send := _} = Move} <- maps:to_list(Moves)],
-     G#groups{leaders = New, members = maps:fold(fun(I, L, Acc) when I =/= L -> Acc#{I => true, L => true};
-                                                   (_, _, Acc) -> Acc
-                                                end, #{}, Planned)}}.
+     G#groups{leaders = New, members = grouped(Planned)}}.
 
 %% The groups from Bodies, the current groups and the pairs that met at
 %% many substeps lately (eager: tests).

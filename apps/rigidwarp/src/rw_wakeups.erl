@@ -23,13 +23,9 @@ add(At, Pid, W) ->
 %% earliest times first); the others still wait.
 -spec wake(integer(), wakeups()) -> wakeups().
 wake(G, W) ->
-    case gb_trees:is_empty(W) of
-        true -> W;
-        false ->
-            case gb_trees:smallest(W) of
-                {At, Pids} when At =< G ->
-                    _ = [rw_trace:send(Pid, {gvt, G}) || Pid <- Pids],
-                    wake(G, gb_trees:delete(At, W));
-                _ -> W
-            end
+    case gb_trees:is_empty(W) orelse gb_trees:smallest(W) of
+        {At, Pids} when At =< G ->
+            _ = [rw_trace:send(Pid, {gvt, G}) || Pid <- Pids],
+            wake(G, gb_trees:delete(At, W));
+        _ -> W
     end.

@@ -3,12 +3,11 @@
 %% with and without a response at its time (-0.0 is not 0.0).
 -module(rw_commits_tests).
 -include_lib("eunit/include/eunit.hrl").
-
-same(A, B) -> ?assertEqual(term_to_binary(A, [{minor_version, 2}]), term_to_binary(B, [{minor_version, 2}])).
+-define(assertBitwise(Expected, Actual), rw_test_lib:assert_bitwise(Expected, Actual, {?MODULE, ?LINE})).
 
 round_trip(P, V, Q, W, Pre) ->
     Record = rw_commits:record(30, 7, <<"b7">>, P, V, Q, W, Pre),
-    same({{<<"b7">>, P, V, Q, W}, Pre}, rw_commits:unpack(Record)),
+    ?assertBitwise({{<<"b7">>, P, V, Q, W}, Pre}, rw_commits:unpack(Record)),
     ?assertMatch({{30, 7}, _, _}, Record).
 
 without_rotation_test() ->
@@ -32,9 +31,9 @@ motions_and_frames_at_test() ->
     Rows = [rw_commits:record(T, I, integer_to_binary(I), {float(I), float(T), -0.0}, {1.0, 2.0, float(I)},
                               undefined, undefined, {{0.0, 0.0, 0.0}, undefined}) || T <- [10, 20], I <- [3, 1, 2]],
     true = ets:insert(Records, Rows),
-    same([{I, {float(I), 20.0, -0.0}, {1.0, 2.0, float(I)}} || I <- [1, 2, 3]], rw_commits:motions_at(20, all, Records)),
-    same([{I, {float(I), 10.0, -0.0}, {1.0, 2.0, float(I)}} || I <- [1, 3]], rw_commits:motions_at(10, [1, 3, 4], Records)),
-    same([{integer_to_binary(I), {float(I), 10.0, -0.0}, {1.0, 2.0, float(I)}, undefined, undefined} || I <- [1, 2, 3]],
+    ?assertBitwise([{I, {float(I), 20.0, -0.0}, {1.0, 2.0, float(I)}} || I <- [1, 2, 3]], rw_commits:motions_at(20, all, Records)),
+    ?assertBitwise([{I, {float(I), 10.0, -0.0}, {1.0, 2.0, float(I)}} || I <- [1, 3]], rw_commits:motions_at(10, [1, 3, 4], Records)),
+    ?assertBitwise([{integer_to_binary(I), {float(I), 10.0, -0.0}, {1.0, 2.0, float(I)}, undefined, undefined} || I <- [1, 2, 3]],
          rw_commits:select_at(10, Records)),
     ok = rw_commits:delete_at(10, Records),
     ?assertEqual([], rw_commits:select_at(10, Records)),
