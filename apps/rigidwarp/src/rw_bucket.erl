@@ -14,7 +14,7 @@
 -module(rw_bucket).
 -behaviour(gen_server).
 -include("rigidwarp.hrl").
--export([start_link/5, lock_probe/4, commit_unlock/4, probe_commit/5, lock_delete/5, unlock/2, gvt/2]).
+-export([start_link/5, lock_probe/4, commit_unlock/4, probe_commit/5, lock_delete/5, unlock/2, gvt/4]).
 -export([init/1, handle_call/3, handle_cast/2, handle_info/2]).
 
 -record(state, {
@@ -106,9 +106,20 @@ cast(Bucket, Msg) ->
 -spec unlock(pid(), pid()) -> ok.
 unlock(Bucket, Owner) -> cast(Bucket, {unlock, Owner}).
 
-%% Nothing before GVT can change any more: forget it (now and then).
--spec gvt(pid(), non_neg_integer()) -> ok.
-gvt(Bucket, Gvt) -> cast(Bucket, {gvt, Gvt}).
+%% Nothing before GVT can change any more: the buckets forget it. A
+%% bucket sweeps its cells only once GVT has moved on by
+%% rw_cells:sweep_every/1 since its last sweep, so they are told only then,
+%% not at every sync point. Told is the GVT they were told last (-1:
+%% none); the answer is the new one.
+-spec gvt([pid()], non_neg_integer(), integer(), pos_integer()) -> integer().
+gvt(Buckets, Gvt, Told, Dt) ->
+    case Told >= 0 andalso Gvt < Told + rw_cells:sweep_every(Dt) of
+        true ->
+            Told;
+        false ->
+            _ = [cast(B, {gvt, Gvt}) || B <- Buckets],
+            Gvt
+    end.
 
 %%% gen_server
 

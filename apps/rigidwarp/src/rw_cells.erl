@@ -12,7 +12,7 @@
 %% writer finds those itself (rw_island).
 -module(rw_cells).
 -include("rigidwarp.hrl").
--export([new/2, probe/3, store/7, delete/5, gc/2, contact_ids/3]).
+-export([new/2, probe/3, store/7, delete/5, gc/2, sweep_every/1, contact_ids/3]).
 -export_type([cells/0, ids/0, cid/0, write/0, payload/0, span/0, member_span/0, hit/0, entry/0, bounds/0]).
 
 %% One step's states of one member: T0 is the LVT of the first state,
@@ -66,7 +66,8 @@ contact_ids(T, Pairs, Uniques) ->
     maps:from_list([{{Idx, OIdx}, {T, min(Idx, OIdx), max(Idx, OIdx), U}} || {{Idx, OIdx}, U} <- lists:zip(Pairs, Uniques)]).
 
 %% Nothing before GVT can change any more: forget it (now and then: a
-%% sweep costs a pass over every segment, done every 32 substeps).
+%% sweep costs a pass over every segment, done when GVT has moved on by
+%% sweep_every/1 since the last).
 -spec gc(non_neg_integer(), cells()) -> cells().
 gc(Gvt, #cells{gc_at = At} = S) when Gvt < At -> S;
 gc(Gvt, #cells{cells = Cells, by_body = By, contacts = C, dt = Dt} = S) ->
@@ -89,7 +90,11 @@ gc(Gvt, #cells{cells = Cells, by_body = By, contacts = C, dt = Dt} = S) ->
                                  end
                          end, By),
     C1 = maps:filter(fun({T, _, _, _}, _) -> T >= Gvt end, C),
-    S#cells{cells = Cells1, by_body = By1, contacts = C1, gc_at = Gvt + 32 * Dt}.
+    S#cells{cells = Cells1, by_body = By1, contacts = C1, gc_at = Gvt + sweep_every(Dt)}.
+
+%% How far GVT moves between two sweeps: 32 substeps of Dt ticks.
+-spec sweep_every(pos_integer()) -> pos_integer().
+sweep_every(Dt) -> 32 * Dt.
 
 %% The earliest LVT at which one of the written members touches another
 %% body's state in one of its cells, with every contact at that LVT. Member

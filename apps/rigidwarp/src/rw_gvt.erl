@@ -69,6 +69,7 @@
     unready = #{} :: #{non_neg_integer() => [pid()]},
     %% sync points passed since GVT was last published, newest first
     passed = [] :: [non_neg_integer()],
+    buckets_told = -1 :: integer(),          % the GVT the buckets last heard of
     %% on several nodes (rw_gvt_site): none on one
     multi = none :: none | #m{}
 }).
@@ -163,6 +164,8 @@ info(Msg, S) ->
 
 ms(T, #s{sim = #sim{scene = Scene}}) -> rw_scene:ms(Scene, T).
 
+dt(#s{sim = #sim{scene = #scene{substep = Dt}}}) -> Dt.
+
 %% An entity that commits several sync points in one step sends their
 %% completions back to back: take them all, so that GVT advances over them
 %% at once and entities and buckets hear of the last one only.
@@ -187,8 +190,9 @@ advance(#s{gvt = G0} = S) ->
         true ->
             ok = rw_trace:committed(G),
             ok = atomics:put(Sim#sim.gvt_now, 1, G),
-            [rw_bucket:gvt(B, G) || B <- tuple_to_list(Sim#sim.buckets)],
-            S2 = lists:foldl(fun finish/2, S1#s{waiting = rw_wakeups:wake(G, S1#s.waiting), passed = []},
+            Told = rw_bucket:gvt(tuple_to_list(Sim#sim.buckets), G, S1#s.buckets_told, dt(S)),
+            S2 = lists:foldl(fun finish/2, S1#s{waiting = rw_wakeups:wake(G, S1#s.waiting), passed = [],
+                                                buckets_told = Told},
                              lists:reverse(Passed)),
             ok = case G of
                      End -> notify(S#s.run, {rw_done, self(), ms(End, S)});

@@ -40,7 +40,8 @@
     sim :: #sim{},
     run_gvt :: pid(),
     buckets :: [pid()],                      % this node's
-    waiting = rw_wakeups:new() :: rw_wakeups:wakeups()
+    waiting = rw_wakeups:new() :: rw_wakeups:wakeups(),
+    buckets_told = -1 :: integer()           % the GVT this node's buckets last heard of
 }).
 
 -spec start_link(#sim{}, pid(), [pid()]) -> {ok, pid()}.
@@ -70,8 +71,8 @@ handle_info({confirm, Ref, Checks, Need}, #s{sim = Sim} = S) ->
 handle_info({gvt, G, Moves}, #s{sim = Sim, waiting = W} = S) ->
     _ = [Pid ! Msg || {Pid, Msg} <- Moves],
     ok = atomics:put(Sim#sim.gvt_now, 1, G),
-    _ = [rw_bucket:gvt(B, G) || B <- S#s.buckets],
-    S1 = S#s{waiting = rw_wakeups:wake(G, W)},
+    Told = rw_bucket:gvt(S#s.buckets, G, S#s.buckets_told, (Sim#sim.scene)#scene.substep),
+    S1 = S#s{waiting = rw_wakeups:wake(G, W), buckets_told = Told},
     ok = rw_commits:forget_through(Sim, G),
     {noreply, S1};
 handle_info({wake_at, Pid, At}, #s{sim = Sim} = S) ->
