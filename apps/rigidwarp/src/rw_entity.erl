@@ -143,7 +143,7 @@
     timeline = rw_timeline:new() :: rw_timeline:timeline(),
     pend_ev = #{} :: #{cid() => true},
     pend_anti = #{} :: #{cid() => true},
-    %% substeps a group integrates ahead in one step (window/2)
+    %% substeps a group integrates ahead in one step (window/3)
     window = 1 :: pos_integer(),
     wake_at = none :: none | integer(),         % the GVT the GVT process will wake this entity at
     touched = rw_neighbour:new() :: rw_neighbour:touched(),
