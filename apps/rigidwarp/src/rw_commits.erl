@@ -113,12 +113,17 @@ select_at(T, Records) -> [element(1, unpack(R)) || R <- records_at(T, Records)].
 %% every body) at sync point T, once GVT has passed T: {Idx, P, V} in idx
 %% order.
 -spec motions_at(non_neg_integer(), all | [non_neg_integer()], ets:tid()) -> [{non_neg_integer(), rw_vec:vec(), rw_vec:vec()}].
-motions_at(T, all, Records) -> [motion(R) || R <- records_at(T, Records)];
+motions_at(T, all, Records) ->
+    %% (a record with rotation holds six vectors: only two are copied out
+    %% of the table, for the GVT process, which every body waits for)
+    [motion(R) || R <- ets:select(Records, [{{{T, '$1'}, '_', {'$2', '$3', '_', '_', '_', '_'}}, [], [{{'$1', '$2', '$3'}}]},
+                                            {{{T, '_'}, '_', '$1'}, [{is_binary, '$1'}], ['$_']}])];
 motions_at(T, Idxs, Records) -> [motion(R) || Idx <- Idxs, R <- ets:lookup(Records, {T, Idx})].
 
-motion({{_, Idx}, _, {P, V, _, _, _, _}}) -> {Idx, P, V};
 motion({{_, Idx}, _, <<_, PX:64/float, PY:64/float, PZ:64/float, VX:64/float, VY:64/float, VZ:64/float, _/binary>>}) ->
-    {Idx, {PX, PY, PZ}, {VX, VY, VZ}}.
+    {Idx, {PX, PY, PZ}, {VX, VY, VZ}};
+motion({{_, Idx}, _, {P, V, _, _, _, _}}) -> {Idx, P, V};
+motion({Idx, _, _} = Motion) when is_integer(Idx) -> Motion.
 
 %% Every body's whole pre-response state at sync point T, in idx order
 %% (once GVT has passed T): what a run resumed from T starts with.

@@ -113,8 +113,13 @@ decide(Bodies, Met, Pids, #groups{leaders = Old, members = Members, max = Max, m
                       maps:fold(fun(_, Share, Acc) -> maps:merge(Acc, plan(Share, Old, Members, Max, Pairs, Landing)) end,
                                 #{}, BySite)
               end,
-    Moves = moves(maps:with(maps:keys(Planned), Old), Planned, Pids),
-    New = maps:fold(fun(I, L, Acc) -> Acc#{I := L} end, Old, Planned),
+    %% (Planned names every body, or some: wanted/2)
+    Before = case map_size(Planned) =:= map_size(Old) of
+                 true -> Old;
+                 false -> maps:with(maps:keys(Planned), Old)
+             end,
+    Moves = moves(Before, Planned, Pids),
+    New = maps:merge(Old, Planned),
     {[{I, Move} || {I, #{send := _} = Move} <- maps:to_list(Moves)],
      G#groups{leaders = New, members = grouped(Planned)}}.
 
@@ -151,15 +156,23 @@ plan(Bodies, Old, Grouped, Max, Met, Landing) ->
 -spec moves(leaders(), leaders(), #{non_neg_integer() => pid()}) -> #{non_neg_integer() => move()}.
 moves(Same, Same, _Pids) -> #{};
 moves(Old, New, Pids) ->
-    OldGroups = groups(Old),
-    NewGroups = groups(New),
-    Changed = fun(Groups, Other) -> [G || {_, G} <- maps:to_list(Groups), not is_group(G, Other)] end,
-    Gathers = [{hd(G), #{gather => lists:usort([maps:get(M, Old) || M <- G])}}
-               || G <- Changed(NewGroups, OldGroups)],
+    %% The groups that change are those that lose or gain a member: those
+    %% led, before or after, by the old or new leader of a body whose
+    %% leader changes (a leader is its group's lowest idx). Only they are
+    %% gathered into lists: at a regroup point of a pile of hundreds of
+    %% spheres a few groups change.
+    Changed = maps:fold(fun(I, L, Acc) ->
+                                case maps:get(I, Old) of
+                                    L -> Acc;
+                                    L0 -> Acc#{L0 => true, L => true}
+                                end
+                        end, #{}, New),
+    Of = fun(Leaders) -> groups(maps:filter(fun(_, L) -> is_map_key(L, Changed) end, Leaders)) end,
+    Gathers = [{hd(G), #{gather => lists:usort([maps:get(M, Old) || M <- G])}} || G <- maps:values(Of(New))],
     From = maps:from_list([{L, F} || {L, #{gather := F}} <- Gathers]),
     Sends = [{hd(G), #{send => [{M, maps:get(M, New), maps:get(maps:get(M, New), Pids)} || M <- G],
                        expect => maps:with([maps:get(M, New) || M <- G], From)}}
-             || G <- Changed(OldGroups, NewGroups)],
+             || G <- maps:values(Of(Old))],
     lists:foldl(fun({I, Move}, Acc) -> maps:update_with(I, fun(M) -> maps:merge(M, Move) end, Move, Acc) end,
                 #{}, Sends ++ Gathers).
 
@@ -188,8 +201,6 @@ groups(Leaders) ->
     maps:map(fun(_, Ms) -> lists:sort(Ms) end,
              maps:fold(fun(I, L, Acc) -> maps:update_with(L, fun(Ms) -> [I | Ms] end, [I], Acc) end,
                        #{}, Leaders)).
-
-is_group([L | _] = G, Groups) -> maps:get(L, Groups, none) =:= G.
 
 %% Pairs close enough to stay together or to join: a pair that met often,
 %% or with Landing a body closing in on a group's member (a sphere landing

@@ -24,9 +24,9 @@ init(Ring, Records, N) ->
     ok.
 
 %% Frame time Tick (Ms in ms) enters a ring of Size frames, unless it is
-%% there already; the oldest leaves it once the ring is full, and its
-%% records go.
--spec write(ets:tid(), number(), non_neg_integer(), pos_integer()) -> ok.
+%% there already; the oldest leaves it once the ring is full, and the
+%% caller forgets its records: {left, ItsTick}.
+-spec write(ets:tid(), number(), non_neg_integer(), pos_integer()) -> ok | {left, non_neg_integer()}.
 write(Ring, Ms, Tick, Size) ->
     case ets:member(Ring, {t, Ms}) of
         true -> ok;
@@ -35,21 +35,20 @@ write(Ring, Ms, Tick, Size) ->
 
 add(Ring, Ms, Tick, Size) ->
     [{count, K}] = ets:lookup(Ring, count),
-    _ = case K >= Size of
-            true ->
-                [{_, OldMs}] = ets:lookup(Ring, {slot, K rem Size}),
-                [{_, OldTick}] = ets:lookup(Ring, {t, OldMs}),
-                [{source, Records, _}] = ets:lookup(Ring, source),
-                true = ets:delete(Ring, {t, OldMs}),
-                rw_commits:delete_at(OldTick, Records);
-            false -> ok
-        end,
+    Left = case K >= Size of
+               true ->
+                   [{_, OldMs}] = ets:lookup(Ring, {slot, K rem Size}),
+                   [{_, OldTick}] = ets:lookup(Ring, {t, OldMs}),
+                   true = ets:delete(Ring, {t, OldMs}),
+                   {left, OldTick};
+               false -> ok
+           end,
     Latest = case ets:lookup(Ring, latest) of
                  [{latest, L}] when L > Ms -> L;
                  _ -> Ms
              end,
     true = ets:insert(Ring, [{{t, Ms}, Tick}, {{slot, K rem Size}, Ms}, {count, K + 1}, {latest, Latest}]),
-    ok.
+    Left.
 
 %% Drop the frames at From (ticks) and later: a simulation restarted from
 %% a checkpoint at From commits them again, and a frame it writes must only

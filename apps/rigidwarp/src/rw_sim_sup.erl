@@ -6,6 +6,7 @@
 %%       `-- rw_sim_sup (rest_for_one, no restarts)
 %%           |-- rw_sim_tables    owns the working ETS tables (counts, procs, owners, met)
 %%           |-- buckets          one_for_all: the fixed pool {bucket, 0..N-1} (rw_bucket)
+%%           |-- rw_sweeper       forgets the records the GVT process is done with
 %%           |-- rw_gvt           GVT counter, frames into the ring, regroup plans
 %%           |-- rw_watchdog      says who holds GVT back when it stalls
 %%           `-- bodies           simple_one_for_one: one rw_body per sphere
@@ -31,7 +32,7 @@
 -type options() :: #{nodes => [node()], run => pid(), frames => boolean(), ring_size => pos_integer(),
                      checkpoint_ms => non_neg_integer(), watchdog_ms => pos_integer(), atom() => term()}.
 %% A process of the simulation, as a fault report names it.
--type who() :: tables | {bucket, non_neg_integer()} | gvt | watchdog | {body, binary()} | {site, node()}
+-type who() :: tables | {bucket, non_neg_integer()} | gvt | sweeper | watchdog | {body, binary()} | {site, node()}
              | {site_gvt, node()}.
 
 %% Start the tree of a simulation of Scene (from its start time) with
@@ -64,14 +65,15 @@ one_node(Sup, #scene{model = M, substep = Dt, spheres = Spheres, initial = Initi
                                                               length(Spheres))),
     Buckets = lists:sort([{I, P} || {{bucket, I}, P, _, _} <- supervisor:which_children(BucketSup)]),
     Sim0 = rw_sim:new(Scene, Tables, list_to_tuple([P || {_, P} <- Buckets]), Stats, Opts),
-    {ok, Gvt} = child(Sup, rw_sim_parts:worker(gvt, rw_gvt, [Sim0, maps:with([run, frames, ring_size, checkpoint_ms], Opts)])),
+    {ok, Sweeper} = child(Sup, rw_sim_parts:worker(sweeper, rw_sweeper, [maps:get(records, Tables)])),
+    {ok, Gvt} = child(Sup, rw_sim_parts:worker(gvt, rw_gvt, [Sim0, (gvt_options(Opts))#{sweeper => Sweeper}])),
     Sim = Sim0#sim{gvt = Gvt},
     {ok, Watchdog} = child(Sup, rw_sim_parts:worker(watchdog, rw_watchdog, [Sim, maps:get(run, Opts, undefined),
                                                                maps:get(watchdog_ms, Opts, 10000)])),
     {ok, BodySup} = child(Sup, rw_sim_parts:body_pool()),
     Bodies = rw_sim_parts:start_bodies(BodySup, rw_sim:for_bodies(Sim), lists:zip(Spheres, Initial)),
     _ = [Pid ! go || {_, _, Pid} <- Bodies],
-    {Sim, [{Gvt, gvt}, {Watchdog, watchdog}]
+    {Sim, [{Gvt, gvt}, {Sweeper, sweeper}, {Watchdog, watchdog}]
           ++ [{P, {bucket, I}} || {I, P} <- Buckets] ++ [{Pid, {body, Id}} || {_, Id, Pid} <- Bodies]}.
 
 %% Over several nodes: a site on each (rw_site), the bodies and buckets
@@ -93,7 +95,8 @@ nodes(Sup, Nodes, #scene{model = M, substep = Dt, spheres = Spheres, initial = I
              end || {I, Node} <- lists:zip(lists:seq(0, K - 1), Nodes)],
     AllBuckets = list_to_tuple(lists:append([B || {_, _, _, B} <- Sites])),
     Sim0 = (rw_sim:new(Scene, Tables, AllBuckets, Stats, Opts))#sim{placement = Place},
-    {ok, Gvt} = child(Sup, rw_sim_parts:worker(gvt, rw_gvt, [Sim0, maps:with([run, frames, ring_size, checkpoint_ms], Opts)])),
+    {ok, Sweeper} = child(Sup, rw_sim_parts:worker(sweeper, rw_sweeper, [maps:get(records, Tables)])),
+    {ok, Gvt} = child(Sup, rw_sim_parts:worker(gvt, rw_gvt, [Sim0, (gvt_options(Opts))#{sweeper => Sweeper}])),
     Sim = Sim0#sim{gvt = Gvt},
     {ok, Watchdog} = child(Sup, rw_sim_parts:worker(watchdog, rw_watchdog, [Sim, maps:get(run, Opts, undefined),
                                                                maps:get(watchdog_ms, Opts, 10000)])),
@@ -109,12 +112,14 @@ nodes(Sup, Nodes, #scene{model = M, substep = Dt, spheres = Spheres, initial = I
     _ = [Pid ! go || {_, _, Pid} <- Bodies],
     BucketNames = lists:append([[{P, {bucket, I * Per + J}} || {J, P} <- lists:zip(lists:seq(0, length(B) - 1), B)]
                                 || {I, _, _, B} <- Sites]),
-    {Sim, [{Gvt, gvt}, {Watchdog, watchdog}]
+    {Sim, [{Gvt, gvt}, {Sweeper, sweeper}, {Watchdog, watchdog}]
           ++ [{Pid, {site, Node}} || {_, Node, Pid, _} <- Sites]
           ++ [{SiteGvt, {site_gvt, node(SiteGvt)}} || {_, {SiteGvt, _}} <- Started]
           ++ BucketNames ++ [{Pid, {body, Id}} || {_, Id, Pid} <- Bodies]}.
 
 child(Sup, Spec) -> supervisor:start_child(Sup, Spec).
+
+gvt_options(Opts) -> maps:with([run, frames, ring_size, checkpoint_ms], Opts).
 
 -spec init(sim) -> {ok, {supervisor:sup_flags(), [supervisor:child_spec()]}}.
 init(sim) -> rw_sim_parts:init(sim).

@@ -35,6 +35,12 @@ motions_and_frames_at_test() ->
     ?assertBitwise([{I, {float(I), 10.0, -0.0}, {1.0, 2.0, float(I)}} || I <- [1, 3]], rw_commits:motions_at(10, [1, 3, 4], Records)),
     ?assertBitwise([{integer_to_binary(I), {float(I), 10.0, -0.0}, {1.0, 2.0, float(I)}, undefined, undefined} || I <- [1, 2, 3]],
          rw_commits:select_at(10, Records)),
+    %% with rotation: only the position and the velocity
+    true = ets:insert(Records, [rw_commits:record(30, I, integer_to_binary(I), {float(I), 30.0, -0.0}, {-0.0, 2.0, float(I)},
+                                                  {{0.5, -0.5, 0.5}, -0.5}, {0.0, 1.0, 2.0}, {{0.0, 0.0, 0.0}, {1.0, 1.0, 1.0}})
+                                || I <- [2, 1]]),
+    ?assertBitwise([{I, {float(I), 30.0, -0.0}, {-0.0, 2.0, float(I)}} || I <- [1, 2]], rw_commits:motions_at(30, all, Records)),
+    ?assertBitwise([{2, {2.0, 30.0, -0.0}, {-0.0, 2.0, 2.0}}], rw_commits:motions_at(30, [2], Records)),
     ok = rw_commits:delete_at(10, Records),
     ?assertEqual([], rw_commits:select_at(10, Records)),
     ?assertEqual(3, length(rw_commits:select_at(20, Records))).
