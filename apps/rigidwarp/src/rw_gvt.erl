@@ -108,9 +108,11 @@ init({#sim{scene = #scene{spheres = Spheres, model = #model{gravity = Gravity}},
     %% (held until GVT is published, for the regroup plan), and a heap
     %% sized to what survived the last collection would fill with them at
     %% once and collect at every advance: room for the records of about 40
-    %% frames, at most 2M words (16 MiB), past which a heap costs more in
-    %% cache misses than it saves in collections.
-    _ = process_flag(min_heap_size, min(2048 * N, 1 bsl 21)),
+    %% frames of up to 50 bodies, of fewer frames of more, and never past
+    %% the 128k words beyond which the runtime hands a collection to a dirty
+    %% scheduler (this process, which every body waits for, would wait for
+    %% that thread to wake).
+    _ = process_flag(min_heap_size, min(2048 * N, 100000)),
     ok = rw_trace:init(Sim#sim.trace),
     ok = rw_ring:init(Ring, Records, N),
     Idxs = lists:sort([I || #sphere{idx = I} <- Spheres]),
