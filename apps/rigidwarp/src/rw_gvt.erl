@@ -30,9 +30,9 @@
 %% run: told of every frame (the frame itself once send_frames/1 asks, else
 %% its time), of checkpoints and of the end; ring_size: frames kept in the
 %% ring; checkpoint_ms: wall time between checkpoints; sweeper: forgets
-%% the records this process is done with (else it does so itself).
+%% the records this process is done with (rw_sweeper).
 -type options() :: #{run => pid(), frames => boolean(), ring_size => pos_integer(),
-                     checkpoint_ms => non_neg_integer(), sweeper => pid()}.
+                     checkpoint_ms => non_neg_integer(), sweeper := pid()}.
 
 %% A simulation over several nodes: the GVT processes of the sites, those
 %% that hold bodies (whose reports GVT waits for), the site of every body's
@@ -61,7 +61,7 @@
     %% the entities to wake when GVT reaches each time
     waiting = rw_wakeups:new() :: rw_wakeups:wakeups(),
     ring_size :: pos_integer(),
-    sweeper :: pid() | undefined,             % forgets records (rw_sweeper)
+    sweeper :: pid(),                         % forgets records (rw_sweeper)
     checkpoint_ms :: non_neg_integer(),
     checkpoint_due :: integer(),              % monotonic ms
     radii :: #{non_neg_integer() => float()},
@@ -118,7 +118,7 @@ init({#sim{scene = #scene{spheres = Spheres, model = #model{gravity = Gravity}},
     Idxs = lists:sort([I || #sphere{idx = I} <- Spheres]),
     Every = maps:get(checkpoint_ms, Opts, ?CHECKPOINT_MS),
     {ok, #s{sim = Sim, run = maps:get(run, Opts, undefined), frames = maps:get(frames, Opts, false),
-            ring_size = maps:get(ring_size, Opts, 1024), sweeper = maps:get(sweeper, Opts, undefined),
+            ring_size = maps:get(ring_size, Opts, 1024), sweeper = maps:get(sweeper, Opts),
             checkpoint_ms = Every,
             checkpoint_due = erlang:monotonic_time(millisecond) + Every,
             radii = maps:from_list([{I, R} || #sphere{idx = I, radius = R} <- Spheres]),
@@ -254,7 +254,7 @@ finish(T, #s{sim = #sim{records = Records, ring = Ring, sync = Cal} = Sim} = S) 
             Ms = ms(T, S),
             ok = case rw_ring:write(Ring, Ms, T, S#s.ring_size) of
                      ok -> ok;
-                     {left, Old} -> forget_records(Old, S)
+                     {left, Old} -> rw_sweeper:forget(S#s.sweeper, Old)
                  end,
             ok = case S#s.frames of
                      true -> notify(S#s.run, {rw_frame, self(), {frame, Ms, rw_commits:select_at(T, Records)}});
@@ -262,14 +262,9 @@ finish(T, #s{sim = #sim{records = Records, ring = Ring, sync = Cal} = Sim} = S) 
                  end,
             checkpoint(T, Ms, S);
         false ->
-            ok = forget_records(T, S),
+            ok = rw_sweeper:forget(S#s.sweeper, T),
             S
     end.
-
-%% GVT has passed T and no frame of the ring holds it: its records go, by
-%% the sweeper when there is one (on its own, this process's work).
-forget_records(T, #s{sweeper = undefined, sim = #sim{records = Records}}) -> rw_commits:delete_at(T, Records);
-forget_records(T, #s{sweeper = Sweeper}) -> rw_sweeper:forget(Sweeper, T).
 
 %% Every checkpoint_ms of wall time, a frame is also a checkpoint: the
 %% whole state of every body, from which the run restarts after a fault.

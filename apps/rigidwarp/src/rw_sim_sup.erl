@@ -65,8 +65,7 @@ one_node(Sup, #scene{model = M, substep = Dt, spheres = Spheres, initial = Initi
                                                               length(Spheres))),
     Buckets = lists:sort([{I, P} || {{bucket, I}, P, _, _} <- supervisor:which_children(BucketSup)]),
     Sim0 = rw_sim:new(Scene, Tables, list_to_tuple([P || {_, P} <- Buckets]), Stats, Opts),
-    {ok, Sweeper} = child(Sup, rw_sim_parts:worker(sweeper, rw_sweeper, [maps:get(records, Tables)])),
-    {ok, Gvt} = child(Sup, rw_sim_parts:worker(gvt, rw_gvt, [Sim0, (gvt_options(Opts))#{sweeper => Sweeper}])),
+    {Sweeper, Gvt} = start_gvt(Sup, Sim0, Tables, Opts),
     Sim = Sim0#sim{gvt = Gvt},
     {ok, Watchdog} = child(Sup, rw_sim_parts:worker(watchdog, rw_watchdog, [Sim, maps:get(run, Opts, undefined),
                                                                maps:get(watchdog_ms, Opts, 10000)])),
@@ -95,8 +94,7 @@ nodes(Sup, Nodes, #scene{model = M, substep = Dt, spheres = Spheres, initial = I
              end || {I, Node} <- lists:zip(lists:seq(0, K - 1), Nodes)],
     AllBuckets = list_to_tuple(lists:append([B || {_, _, _, B} <- Sites])),
     Sim0 = (rw_sim:new(Scene, Tables, AllBuckets, Stats, Opts))#sim{placement = Place},
-    {ok, Sweeper} = child(Sup, rw_sim_parts:worker(sweeper, rw_sweeper, [maps:get(records, Tables)])),
-    {ok, Gvt} = child(Sup, rw_sim_parts:worker(gvt, rw_gvt, [Sim0, (gvt_options(Opts))#{sweeper => Sweeper}])),
+    {Sweeper, Gvt} = start_gvt(Sup, Sim0, Tables, Opts),
     Sim = Sim0#sim{gvt = Gvt},
     {ok, Watchdog} = child(Sup, rw_sim_parts:worker(watchdog, rw_watchdog, [Sim, maps:get(run, Opts, undefined),
                                                                maps:get(watchdog_ms, Opts, 10000)])),
@@ -119,7 +117,13 @@ nodes(Sup, Nodes, #scene{model = M, substep = Dt, spheres = Spheres, initial = I
 
 child(Sup, Spec) -> supervisor:start_child(Sup, Spec).
 
-gvt_options(Opts) -> maps:with([run, frames, ring_size, checkpoint_ms], Opts).
+%% The sweeper, then the GVT process that hands it the records it is done
+%% with.
+start_gvt(Sup, Sim, Tables, Opts) ->
+    {ok, Sweeper} = child(Sup, rw_sim_parts:worker(sweeper, rw_sweeper, [maps:get(records, Tables)])),
+    GvtOpts = (maps:with([run, frames, ring_size, checkpoint_ms], Opts))#{sweeper => Sweeper},
+    {ok, Gvt} = child(Sup, rw_sim_parts:worker(gvt, rw_gvt, [Sim, GvtOpts])),
+    {Sweeper, Gvt}.
 
 -spec init(sim) -> {ok, {supervisor:sup_flags(), [supervisor:child_spec()]}}.
 init(sim) -> rw_sim_parts:init(sim).
