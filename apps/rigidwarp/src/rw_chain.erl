@@ -93,10 +93,12 @@ substep(T, St, {M, _, Base, TL, _}, Island0) ->
 %% A body on its own without CCD, the hot path of free flight: while it
 %% touches nothing it keeps its velocities, and a substep is a few float
 %% operations (those of rw_integrate:advance/5 with a zero pseudo-velocity,
-%% in the same order) and the state appended to the binary. Other substeps
-%% (a fixture near, a known contact, the group's start) go through the
-%% island as in alone/7. Sync is the next sync point, Busy the substeps
-%% known not to be free.
+%% in the same order) and the state appended to the binary. So is a
+%% substep near a fixture that the body does not touch (the island's own
+%% test, rw_island:touches_no_fixture/4). Other substeps (a fixture
+%% touched, a known contact, the group's start) go through the island as
+%% in alone/7. Sync is the next sync point, Busy the substeps known not to
+%% be free.
 flight(T, _X, _Y, _Z, _VX, _VY, _VZ, _Q, _W, Last, _Ctx, _Zone, Island, _Sync, _Busy, Passed, Bin,
        _PX, X0, Y0, Z0, X1, Y1, Z1, Reach) when T >= Last ->
     {lists:reverse(Passed), Bin, {X0, Y0, Z0, X1, Y1, Z1}, Reach, Island};
@@ -104,7 +106,8 @@ flight(T, X, Y, Z, VX, VY, VZ, Q, W, Last, {#model{dt = Dt, gravity = G, integra
        Zone, Island, Sync, Busy, Passed0, Bin, First, X0, Y0, Z0, X1, Y1, Z1, Reach)
   when is_float(X), is_float(Y), is_float(Z), is_float(VX), is_float(VY), is_float(VZ), is_float(Dt) ->
     {Post, NX, NY, NZ, NVX, NVY, NVZ, NQ, NW, Zone1, Island1} =
-        case is_free(T, X, Y, Z, Zone, Busy) of
+        case is_free(T, X, Y, Z, Zone, Busy) orelse
+             (not_busy(T, Busy) andalso rw_island:touches_no_fixture(Island, X, Y, Z)) of
             true ->
                 {AX, AY, AZ, AVX, AVY, AVZ} =
                     case G of
@@ -164,6 +167,9 @@ flight(T, X, Y, Z, VX, VY, VZ, Q, W, Last, {#model{dt = Dt, gravity = G, integra
                    if NY > Y1 -> NY; true -> Y1 end, if NZ > Z1 -> NZ; true -> Z1 end,
                    if Step > Reach -> Step; true -> Reach end)
     end.
+
+not_busy(T, [T | _]) -> false;
+not_busy(_T, _Busy) -> true.
 
 is_free(T, _X, _Y, _Z, _Zone, [T | _]) -> false;
 is_free(_T, _X, _Y, _Z, always, _Busy) -> true;

@@ -35,6 +35,34 @@ same({T, St, Last, Ctx, Island}) ->
     Each = rw_chain:run_each(T, St, Last, Ctx, Island),
     rw_test_lib:bitwise_equal(Fast, Each).
 
+%% A sphere gliding along a wall of its box or along the floor, close
+%% enough to be out of its free zone for the whole step, touching the wall
+%% or the floor now and then (the fast path must also take the substeps at
+%% which it is near and touches nothing, and only those).
+gliding_along_a_wall_test_() ->
+    Box = [rw_shape:fixture(0, <<"box">>, {box, {0.0, 0.0, 0.0}, {1.5, 1.5, 1.5}, hollow})],
+    Floor = [rw_shape:fixture(0, <<"floor">>, {plane, {0.0, 1.0, 0.0}, 0.0})],
+    [?_assert(same(gliding(M, Fx, Gap, Drift)))
+     || M <- [#model{}, #model{gravity = {0.0, -9.81, 0.0}}, #model{rotation = true, friction = 0.3}],
+        Fx <- [Box, Floor], Gap <- [1.0e-3, 0.02, 0.2], Drift <- [0.0, 0.05, -0.05]].
+
+gliding(#model{rotation = Rot} = M, [#fixture{shape = Shape}] = Fixtures, Gap, Drift) ->
+    R = 0.25,
+    Sphere = #sphere{idx = 7, id = <<"s">>, radius = R, mass = 1.0, inv_mass = 1.0, inv_inertia = 1.0 / (0.4 * R * R)},
+    %% the box's wall at x = 1.5, or the floor at y = 0
+    {P, V} = case Shape of
+                 {box, _, _, _} -> {{1.5 - R - Gap, 0.1, -1.0}, {Drift, 0.3, 1.7}};
+                 {plane, _, _} -> {{-1.0, R + Gap, 0.3}, {1.7, Drift, -0.2}}
+             end,
+    St = case Rot of
+             true -> #st{p = P, v = V, q = rw_quat:identity(), w = {0.0, 0.0, 2.0}};
+             false -> #st{p = P, v = V}
+         end,
+    Cal = rw_sync:new(10, 64, 200, 0),
+    Island0 = rw_island:new(M, [Sphere], Fixtures),
+    {_, _, Island} = rw_chain:run_each(3, St, 4, {M, 1, none, rw_timeline:new(), Cal}, Island0),
+    {3, St, 130, {M, 1, none, rw_timeline:new(), Cal}, Island}.
+
 %% A sphere near the floor or a wall, falling or flying towards it fast
 %% enough to touch it within the step, perhaps with a known contact with
 %% another body at some substep and from a group's start.

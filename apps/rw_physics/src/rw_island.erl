@@ -24,7 +24,7 @@
 %% its move from the anchor, not the six walls, at each substep.
 -module(rw_island).
 -include("rw_physics.hrl").
--export([new/3, size/1, posts/3, step/3, post/3, advance/3, free_zone/1]).
+-export([new/3, size/1, posts/3, step/3, post/3, advance/3, free_zone/1, touches_no_fixture/4]).
 -export_type([island/0, external/0]).
 -include("rw_vec_inline.hrl").
 
@@ -151,6 +151,26 @@ free_zone(#island{model = #model{ccd = false}, spheres = {_}, near = {[]}, fanch
   when is_float(Limit) ->
     {AX, AY, AZ, Limit * Limit};
 free_zone(_) -> none.
+
+%% Whether the one member of an island of one, at position {X, Y, Z} and
+%% with no contact from outside, touches none of its fixtures by post/3's
+%% own tests while it stays within reach of its anchor: then post/3 gives
+%% its own velocities back and keeps the island as it is, as in its free
+%% zone. (A sphere near a wall is out of its free zone for many substeps
+%% on end without touching it.)
+-spec touches_no_fixture(island(), float(), float(), float()) -> boolean().
+touches_no_fixture(#island{model = #model{ccd = false}, spheres = {#sphere{radius = R}}, near = {Near},
+                           fanchors = {{AX, AY, AZ}}, flimit = Limit}, X, Y, Z)
+  when is_float(X), is_float(Y), is_float(Z), is_float(AX), is_float(AY), is_float(AZ), is_float(Limit) ->
+    DX = X - AX,
+    DY = Y - AY,
+    DZ = Z - AZ,
+    DX * DX + DY * DY + DZ * DZ =< Limit * Limit andalso no_fixture_contact(Near, {X, Y, Z}, R);
+touches_no_fixture(_I, _X, _Y, _Z) -> false.
+
+%% rw_dynamics:fixture_effects/4 finds no contact (without CCD).
+no_fixture_contact([], _P, _R) -> true;
+no_fixture_contact([F | Rest], P, R) -> rw_narrow:fixture(P, R, F) =:= [] andalso no_fixture_contact(Rest, P, R).
 
 alone(_M, _S, St, [], []) -> rw_dynamics:respond(St, []);
 alone(M, S, St, Fixtures, []) -> respond(St, rw_dynamics:fixture_effects(M, S, St, Fixtures), []);
