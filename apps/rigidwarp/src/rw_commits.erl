@@ -42,9 +42,15 @@ record(T, Idx, Id, {PX, PY, PZ}, {VX, VY, VZ} = V, undefined, undefined, {{AX, A
 record(T, Idx, Id, P, V, Q, W, {V0, W0}) ->
     {{T, Idx}, Id, {P, V, Q, W, V0, W0}}.
 
-%% Bit for bit the same vector (=:= and a match take -0.0 for 0.0).
+%% Bit for bit the same vector. =:= and a match take -0.0 for 0.0, so a
+%% zero is compared by its bits; floats that are =:= and not zero have the
+%% same bits (there is no NaN).
 same({X, Y, Z}, {X1, Y1, Z1}) ->
-    <<X:64/float, Y:64/float, Z:64/float>> =:= <<X1:64/float, Y1:64/float, Z1:64/float>>.
+    same_float(X, X1) andalso same_float(Y, Y1) andalso same_float(Z, Z1).
+
+same_float(A, B) when A =:= B, A =/= 0.0 -> true;
+same_float(A, B) when A =:= B -> <<A:64/float>> =:= <<B:64/float>>;
+same_float(_, _) -> false.
 
 %% The frame record and the pre-response velocities a record holds.
 -spec unpack(record()) -> {rw_reference:body_frame(), {rw_vec:vec(), rw_vec:vec() | undefined}}.

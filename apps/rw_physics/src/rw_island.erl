@@ -81,7 +81,7 @@ posts(#island{model = M, spheres = Spheres, pos = Pos} = I0, States, External) -
     Found = pair_effects(Pairs, M, Spheres, States, Seen, Disps, Outside),
     %% (sorted descending, each member's effects are gathered in ascending
     %% key order without a reverse)
-    {list_to_tuple(each_post(N, lists:reverse(lists:sort(Found)), States, Fixed, [])), I}.
+    {list_to_tuple(each_post(N, by_member(Found, erlang:make_tuple(N, [])), States, Fixed, [])), I}.
 
 %% Every member's fixture effects and the state its pair contacts see.
 fixed_and_seen(0, _M, _Spheres, _States, _Near, Fixed, Seen) -> {list_to_tuple(Fixed), list_to_tuple(Seen)};
@@ -94,11 +94,15 @@ fixed_and_seen(K, M, Spheres, States, Near, Fixed, Seen) ->
 %% descending by {Position, Key}.
 each_post(0, _Found, _States, _Fixed, Acc) -> Acc;
 each_post(K, Found, States, Fixed, Acc) ->
-    {Mine, Rest} = take(K, Found, []),
-    each_post(K - 1, Rest, States, Fixed, [respond(element(K, States), element(K, Fixed), Mine) | Acc]).
+    Mine = case element(K, Found) of
+               [_, _ | _] = Many -> lists:sort(Many);
+               OneOrNone -> OneOrNone
+           end,
+    each_post(K - 1, Found, States, Fixed, [respond(element(K, States), element(K, Fixed), Mine) | Acc]).
 
-take(K, [{K, Keyed} | Rest], Acc) -> take(K, Rest, [Keyed | Acc]);
-take(_K, Rest, Acc) -> {Acc, Rest}.
+%% The pair and outside effects by member position.
+by_member([], Acc) -> Acc;
+by_member([{K, Keyed} | Rest], Acc) -> by_member(Rest, setelement(K, Acc, [Keyed | element(K, Acc)])).
 
 %% The posts at this substep, and the members' next pre-response states.
 -spec step(island(), tuple(), [external()]) -> {tuple(), tuple(), island()}.
