@@ -51,7 +51,8 @@ kill_9_and_resume_reference(Config) ->
 %% --resume), each once the frames file holds a random share of what is
 %% left to write, the first one late enough for a checkpoint to be there
 %% (kill_at/6); after each kill FILE.part holds
-%% whole frame lines, a prefix of the uninterrupted run's; a last --resume
+%% whole frame lines (but perhaps a torn last one), a prefix of the
+%% uninterrupted run's; a last --resume
 %% completes the run, byte for byte the uninterrupted one.
 kills(Config, Name, Args, Expected, _Wall, Times, Seed) ->
     Dir = workdir(Config, Name),
@@ -75,7 +76,7 @@ kills(Config, Name, Args, Expected, _Wall, Times, Seed) ->
                                      {ok, P} -> P;
                                      {error, enoent} -> <<>>
                                  end,
-                          assert_whole_lines(Part),
+                          assert_lines_but_the_last(Part),
                           ?assertEqual(Part, binary:part(Want, 0, byte_size(Part))),
                           {killed, Delay, From, byte_size(Part)};
                       {0, _} ->
@@ -126,6 +127,17 @@ checkpoint_ms(F) ->
     case file:read_file(F ++ ".checkpoint") of
         {ok, B} -> maps:get(ms, binary_to_term(B));
         {error, enoent} -> none
+    end.
+
+%% Whole lines, each one a frame, but perhaps a torn last one: a kill -9
+%% during a write(2) of several pages may cut it short at a page boundary
+%% (rw_output), and a resumed run truncates the file to its checkpoint.
+assert_lines_but_the_last(Bin) ->
+    case binary:matches(Bin, <<"\n">>) of
+        [] -> ok;
+        Newlines ->
+            {Last, 1} = lists:last(Newlines),
+            assert_whole_lines(binary:part(Bin, 0, Last + 1))
     end.
 
 %% Whole lines, each one a frame.

@@ -200,13 +200,19 @@ advance(#s{gvt = G0} = S) ->
                                                 buckets_told = Told},
                              lists:reverse(Passed)),
             ok = case G of
-                     End -> notify(S#s.run, {rw_done, self(), ms(End, S)});
+                     End -> done(S2);
                      _ -> ok
                  end,
             S2;
         false ->
             S1
     end.
+
+%% GVT is at the end: once the records the run is done with are gone, say
+%% so.
+done(#s{sim = #sim{end_t = End}} = S) ->
+    ok = rw_sweeper:sync(S#s.sweeper),
+    notify(S#s.run, {rw_done, self(), ms(End, S)}).
 
 advance_over(#s{complete = C, sim = #sim{sync = Cal} = Sim, unready = U, gvt = G} = S) ->
     Next = rw_sync:after_gvt(G, Cal),
@@ -444,7 +450,7 @@ publish(_G0, #s{gvt = G, sim = #sim{end_t = End} = Sim, multi = M, passed = Pass
     S2 = S1#s{multi = M1#m{reported = maps:filter(fun(T, _) -> T > G end, M1#m.reported),
                            have = maps:filter(fun(T, _) -> T > G end, M1#m.have)}},
     ok = case G of
-             End -> notify(S#s.run, {rw_done, self(), ms(End, S)});
+             End -> done(S2);
              _ -> ok
          end,
     S2.

@@ -9,7 +9,7 @@
 %% times again.
 -module(rw_sweeper).
 -behaviour(gen_server).
--export([start_link/1, forget/2]).
+-export([start_link/1, forget/2, sync/1]).
 -export([init/1, handle_call/3, handle_cast/2]).
 
 -spec start_link(ets:tid()) -> {ok, pid()}.
@@ -19,10 +19,17 @@ start_link(Records) -> gen_server:start_link(?MODULE, Records, []).
 -spec forget(pid(), non_neg_integer()) -> ok.
 forget(Sweeper, T) -> gen_server:cast(Sweeper, {forget, T}).
 
+%% Once every record the caller asked it to forget is gone: at the end of
+%% a run the records table holds only the ring's frames.
+-spec sync(pid()) -> ok.
+sync(Sweeper) -> gen_server:call(Sweeper, sync, infinity).
+
 -spec init(ets:tid()) -> {ok, ets:tid()}.
 init(Records) -> {ok, Records}.
 
--spec handle_call(term(), gen_server:from(), ets:tid()) -> {reply, {error, unknown_call}, ets:tid()}.
+-spec handle_call(term(), gen_server:from(), ets:tid()) -> {reply, ok | {error, unknown_call}, ets:tid()}.
+handle_call(sync, _From, Records) ->
+    {reply, ok, Records};
 handle_call(Req, _From, Records) ->
     logger:warning("rw_sweeper: unexpected call ~p", [Req]),
     {reply, {error, unknown_call}, Records}.
