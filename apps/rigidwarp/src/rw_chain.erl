@@ -106,8 +106,7 @@ flight(T, X, Y, Z, VX, VY, VZ, Q, W, Last, {#model{dt = Dt, gravity = G, integra
        Zone, Island, Sync, Busy, Passed0, Bin, First, X0, Y0, Z0, X1, Y1, Z1, Reach)
   when is_float(X), is_float(Y), is_float(Z), is_float(VX), is_float(VY), is_float(VZ), is_float(Dt) ->
     {Post, NX, NY, NZ, NVX, NVY, NVZ, NQ, NW, Zone1, Island1} =
-        case is_free(T, X, Y, Z, Zone, Busy) orelse
-             (not_busy(T, Busy) andalso rw_island:touches_no_fixture(Island, X, Y, Z)) of
+        case is_free(T, X, Y, Z, Zone, Busy, Island) of
             true ->
                 {AX, AY, AZ, AVX, AVY, AVZ} =
                     case G of
@@ -168,18 +167,17 @@ flight(T, X, Y, Z, VX, VY, VZ, Q, W, Last, {#model{dt = Dt, gravity = G, integra
                    if Step > Reach -> Step; true -> Reach end)
     end.
 
-not_busy(T, [T | _]) -> false;
-not_busy(_T, _Busy) -> true.
-
-is_free(T, _X, _Y, _Z, _Zone, [T | _]) -> false;
-is_free(_T, _X, _Y, _Z, always, _Busy) -> true;
-is_free(_T, X, Y, Z, {AX, AY, AZ, L2}, _Busy) when is_float(X), is_float(Y), is_float(Z), is_float(AX), is_float(AY),
-                                                    is_float(AZ), is_float(L2) ->
+%% Free at T: not busy, and in the free zone or, out of it, touching no
+%% fixture (the island's own test).
+is_free(T, _X, _Y, _Z, _Zone, [T | _], _Island) -> false;
+is_free(_T, _X, _Y, _Z, always, _Busy, _Island) -> true;
+is_free(_T, X, Y, Z, {AX, AY, AZ, L2}, _Busy, Island)
+  when is_float(X), is_float(Y), is_float(Z), is_float(AX), is_float(AY), is_float(AZ), is_float(L2) ->
     DX = X - AX,
     DY = Y - AY,
     DZ = Z - AZ,
-    DX * DX + DY * DY + DZ * DZ =< L2;
-is_free(_T, _X, _Y, _Z, none, _Busy) -> false.
+    DX * DX + DY * DY + DZ * DZ =< L2 orelse rw_island:touches_no_fixture(Island, X, Y, Z);
+is_free(_T, X, Y, Z, none, _Busy, Island) -> rw_island:touches_no_fixture(Island, X, Y, Z).
 
 %% The state appended as rw_states:append/4 appends it.
 append(Bin, X, Y, Z, VX, VY, VZ, undefined, _W) ->

@@ -14,7 +14,7 @@
 %% 5 % of a box's in one substep).
 -module(rw_dynamics).
 -include("rw_physics.hrl").
--export([respond/2, step/3, fixture_effects/4, after_fixtures/2]).
+-export([respond/2, step/3, fixture_effects/4, touches_fixture/3, after_fixtures/2]).
 -export_type([keyed_effect/0]).
 
 %% An effect under its canonical key: {partner or fixture idx, feature}.
@@ -49,6 +49,14 @@ fixture_effects(#model{ccd = Ccd} = M, #sphere{radius = R} = S, #st{p = P} = St,
            end,
     [{{FIdx, Feature}, rw_response:fixture(M, S, St, C)}
      || #fixture{idx = FIdx} = Fixture <- Fixtures, {Feature, C} <- fixture_contacts(P, Disp, R, Fixture)].
+
+%% Whether a sphere of radius R at P touches one of Fixtures, as
+%% fixture_effects/4 finds contacts without CCD (without building them
+%% into effects).
+-spec touches_fixture(rw_vec:vec(), float(), [#fixture{}]) -> boolean().
+touches_fixture(_P, _R, []) -> false;
+touches_fixture(P, R, [Fixture | Rest]) ->
+    fixture_contacts(P, undefined, R, Fixture) =/= [] orelse touches_fixture(P, R, Rest).
 
 fixture_contacts(P, undefined, R, Fixture) -> rw_narrow:fixture(P, R, Fixture);
 fixture_contacts(P, Disp, R, Fixture) -> rw_narrow:swept_fixture(P, Disp, R, Fixture).

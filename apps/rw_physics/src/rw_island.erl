@@ -79,8 +79,6 @@ posts(#island{model = M, spheres = Spheres, pos = Pos} = I0, States, External) -
     {Fixed, Seen} = fixed_and_seen(N, M, Spheres, States, Near, [], []),
     Outside = [{maps:get(Idx, Pos), Keyed} || {Idx, Keyed} <- External],
     Found = pair_effects(Pairs, M, Spheres, States, Seen, Disps, Outside),
-    %% (sorted descending, each member's effects are gathered in ascending
-    %% key order without a reverse)
     {list_to_tuple(each_post(N, by_member(Found, erlang:make_tuple(N, [])), States, Fixed, [])), I}.
 
 %% Every member's fixture effects and the state its pair contacts see.
@@ -90,8 +88,9 @@ fixed_and_seen(K, M, Spheres, States, Near, Fixed, Seen) ->
     F = rw_dynamics:fixture_effects(M, element(K, Spheres), St, element(K, Near)),
     fixed_and_seen(K - 1, M, Spheres, States, Near, [F | Fixed], [rw_dynamics:after_fixtures(St, F) | Seen]).
 
-%% The posts of members K..1, from the pair and outside effects sorted
-%% descending by {Position, Key}.
+%% The posts of members K..1, from each member's pair and outside effects
+%% (by_member/2) in key order (keys are unique: partners, or a fixture's
+%% features).
 each_post(0, _Found, _States, _Fixed, Acc) -> Acc;
 each_post(K, Found, States, Fixed, Acc) ->
     Mine = case element(K, Found) of
@@ -100,7 +99,8 @@ each_post(K, Found, States, Fixed, Acc) ->
            end,
     each_post(K - 1, Found, States, Fixed, [respond(element(K, States), element(K, Fixed), Mine) | Acc]).
 
-%% The pair and outside effects by member position.
+%% The pair and outside effects, {Position, Keyed}, gathered in a tuple by
+%% member position: a member's own few are sorted, not all of them.
 by_member([], Acc) -> Acc;
 by_member([{K, Keyed} | Rest], Acc) -> by_member(Rest, setelement(K, Acc, [Keyed | element(K, Acc)])).
 
@@ -169,12 +169,8 @@ touches_no_fixture(#island{model = #model{ccd = false}, spheres = {#sphere{radiu
     DX = X - AX,
     DY = Y - AY,
     DZ = Z - AZ,
-    DX * DX + DY * DY + DZ * DZ =< Limit * Limit andalso no_fixture_contact(Near, {X, Y, Z}, R);
+    DX * DX + DY * DY + DZ * DZ =< Limit * Limit andalso not rw_dynamics:touches_fixture({X, Y, Z}, R, Near);
 touches_no_fixture(_I, _X, _Y, _Z) -> false.
-
-%% rw_dynamics:fixture_effects/4 finds no contact (without CCD).
-no_fixture_contact([], _P, _R) -> true;
-no_fixture_contact([F | Rest], P, R) -> rw_narrow:fixture(P, R, F) =:= [] andalso no_fixture_contact(Rest, P, R).
 
 alone(_M, _S, St, [], []) -> rw_dynamics:respond(St, []);
 alone(M, S, St, Fixtures, []) -> respond(St, rw_dynamics:fixture_effects(M, S, St, Fixtures), []);
