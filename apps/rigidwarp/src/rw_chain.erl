@@ -167,16 +167,18 @@ flight(T, X, Y, Z, VX, VY, VZ, Q, W, Last, {#model{dt = Dt, gravity = G, integra
                    if Step > Reach -> Step; true -> Reach end)
     end.
 
-%% Free at T: not busy, and in the free zone or, out of it, touching no
-%% fixture (the island's own test).
+%% Free at T: not busy, and in the free zone or, where the island has
+%% none (fixtures listed near), touching none of them (the island's own
+%% test). A zone is the island's with no fixture near: out of it the
+%% island's test would fail on the same distance.
 is_free(T, _X, _Y, _Z, _Zone, [T | _], _Island) -> false;
 is_free(_T, _X, _Y, _Z, always, _Busy, _Island) -> true;
-is_free(_T, X, Y, Z, {AX, AY, AZ, L2}, _Busy, Island)
+is_free(_T, X, Y, Z, {AX, AY, AZ, L2}, _Busy, _Island)
   when is_float(X), is_float(Y), is_float(Z), is_float(AX), is_float(AY), is_float(AZ), is_float(L2) ->
     DX = X - AX,
     DY = Y - AY,
     DZ = Z - AZ,
-    DX * DX + DY * DY + DZ * DZ =< L2 orelse rw_island:touches_no_fixture(Island, X, Y, Z);
+    DX * DX + DY * DY + DZ * DZ =< L2;
 is_free(_T, X, Y, Z, none, _Busy, Island) -> rw_island:touches_no_fixture(Island, X, Y, Z).
 
 %% The state appended as rw_states:append/4 appends it.
