@@ -41,7 +41,7 @@
 %% every substep. Its heap never shrinks below this many words per member
 %% (a pile of 300 steps half as fast again), up to 16 MiB.
 -define(MEMBER_HEAP, 4000).
--define(GROUP_HEAP, 1 bsl 21).
+-define(GROUP_HEAP, (1 bsl 21)).
 
 %% Every collection of a body sweeps its whole heap (no old generation):
 %% what survives one is mostly a step in progress, soon garbage, which a

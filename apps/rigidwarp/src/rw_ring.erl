@@ -14,7 +14,19 @@
 %% (rw_run owns them), so a simulation restarted from a checkpoint writes
 %% frames that are there already: they are the same frames, and stay.
 -module(rw_ring).
--export([init/3, write/4, latest/1, frame_at/2, frames_after/3, ticks/1, truncate/2]).
+-export([frames_kept/2, init/3, write/4, latest/1, frame_at/2, frames_after/3, ticks/1, truncate/2]).
+
+%% The most body records a ring holds by default (about 200 bytes each,
+%% 430-710 with rotation: 6.5-23 MB), and the fewest frames.
+-define(MOST_RECORDS, (1 bsl 15)).
+-define(FEWEST_FRAMES, 4).
+
+%% How many frames a ring keeps for a scene of Bodies bodies: Frames, or
+%% fewer, so that it holds at most 2^15 body records (the records of the
+%% frames held stay in the records table, which every commit inserts
+%% into), but not fewer than 4 for that.
+-spec frames_kept(pos_integer(), non_neg_integer()) -> pos_integer().
+frames_kept(Frames, Bodies) -> min(Frames, max(?FEWEST_FRAMES, ?MOST_RECORDS div max(1, Bodies))).
 
 %% A ring over the records table Records of a simulation of N bodies.
 -spec init(ets:tid(), ets:tid(), pos_integer()) -> ok.

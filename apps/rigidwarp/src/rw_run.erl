@@ -165,14 +165,12 @@ init(Scene, Opts, Nodes) ->
         {error, Reason} -> ok = rw_nodes:stop(Nodes), _ = release_schedulers(R), {stop, Reason}
     end.
 
-%% The frames the ring keeps unless asked otherwise: the latest
-%% ring_frames (the application's environment, 1024 by default), or fewer
-%% (but 16 at least) for scenes of many bodies, so that the ring holds at
-%% most 2^17 body records (about 200 bytes each, 430-710 with rotation: 26-90 MB).
--define(RING_RECORDS, 1 bsl 17).
+%% The frames the ring keeps unless asked otherwise (rw_ring:frames_kept/2):
+%% the latest ring_frames (the application's environment, 1024 by
+%% default), or fewer for scenes of many bodies.
 -define(DEFAULT_RING_FRAMES, 1024).
 
-ring_size(#scene{spheres = Spheres}) -> max(16, min(ring_frames(), ?RING_RECORDS div max(1, length(Spheres)))).
+ring_size(#scene{spheres = Spheres}) -> rw_ring:frames_kept(ring_frames(), length(Spheres)).
 
 ring_frames() ->
     case application:get_env(rigidwarp, ring_frames, ?DEFAULT_RING_FRAMES) of

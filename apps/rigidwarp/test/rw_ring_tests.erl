@@ -24,6 +24,21 @@ write(Ring, Records, T, Size) ->
         {left, Old} -> rw_commits:delete_at(Old, Records)
     end.
 
+%% The frames a ring keeps: all that are asked for while they hold at most
+%% 2^15 body records, else fewer, but not fewer than 4 for that.
+frames_kept_test() ->
+    ?assertEqual(1024, rw_ring:frames_kept(1024, 1)),
+    ?assertEqual(1024, rw_ring:frames_kept(1024, 0)),
+    ?assertEqual(1024, rw_ring:frames_kept(1024, 32)),
+    ?assertEqual(992, rw_ring:frames_kept(1024, 33)),
+    ?assertEqual(20, rw_ring:frames_kept(20, 500)),
+    ?assertEqual(65, rw_ring:frames_kept(1024, 500)),
+    ?assertEqual(16, rw_ring:frames_kept(1024, 2000)),
+    ?assertEqual(4, rw_ring:frames_kept(1024, 8192)),
+    ?assertEqual(4, rw_ring:frames_kept(1024, 20000)),
+    ?assertEqual(2, rw_ring:frames_kept(2, 500)),
+    ?assertEqual(3, rw_ring:frames_kept(3, 100000)).
+
 commit(Records, T) ->
     true = ets:insert(Records, rw_commits:record(T, 0, <<"a">>, {float(T), 0.0, 0.0}, {0.0, 0.0, 0.0}, undefined,
                                                  undefined, {{0.0, 0.0, 0.0}, undefined})).
