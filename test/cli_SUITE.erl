@@ -5,7 +5,7 @@
 -include_lib("stdlib/include/assert.hrl").
 -include("rw_test.hrl").
 -export([all/0, suite/0]).
--export([bench_machine/1, bench_parallelism/1, bench_scale/1]).
+-export([bench_machine/1, bench_parallelism/1, bench_scale/1, bench_scale_rounds/1]).
 -export([nodes_flags/1,
          help/1, validate_every_scenario/1, summary_is_last_line/1, frames_file/1,
          bad_flags_exit_2/1, integrator_and_ccd_flags/1, groups_flags/1, bad_scene_exit_2/1, scenes_lists_bundled/1,
@@ -20,7 +20,7 @@ all() -> [help, version, validate_every_scenario, summary_is_last_line, frames_f
           bad_flags_exit_2,
           bad_scene_exit_2, scene_names, scenes_lists_bundled, bad_input_corpus, generated_bad_inputs, progress_line,
           snapshot_png, frames_must_match_scene, live_view_reports, shell_api_rejects_bad_arguments, summary_key_order, bench_machine,
-          bench_parallelism, bench_scale].
+          bench_parallelism, bench_scale, bench_scale_rounds].
 
 help(_Config) ->
     {0, Out, _} = rw_test_lib:run_escript(["help"]),
@@ -240,6 +240,8 @@ bad_flags_exit_2(_Config) ->
              {["bench", "speed"], "unknown benchmark speed (known: accuracy, machine, parallelism, scale)"},
              {["bench", "scale", "--counts", "10,x"], "--counts must be a positive integer, got x"},
              {["bench", "scale", "extra"], "unexpected argument extra"},
+             {["bench", "scale", "--rounds", "0"], "--rounds must be a positive integer, got 0"},
+             {["bench", "scale", "--counts", "500,20,500"], "--counts names 500 twice"},
              {["bench", "parallelism", "--until", "0"], "--until must be a positive number of ms"},
              {["bench", "parallelism", "--repeats", "x"], "--repeats must be a positive integer, got x"},
              {["bench", "parallelism", "--fast"], "unknown flag --fast"},
@@ -600,6 +602,29 @@ bench_scale(_Config) ->
               <<"kib_per_body">> := Kib} <- [First, Second]],
     ?assertBitwise(maps:get(<<"running_per_s">>, Second) / maps:get(<<"running_per_s">>, First), Vs),
     ?assertMatch({match, _}, re:run(Out, "\\| 60 \\| [0-9]+ \\|")).
+
+%% In rounds: each count once a round (a line on stderr each), its rates
+%% the medians of its rounds and its ratio to the first count the median of
+%% the rounds' ratios, with their range in the table and the JSON line.
+bench_scale_rounds(_Config) ->
+    {0, Out, Err} = rw_test_lib:run_escript(["bench", "scale", "--counts", "20,60", "--until", "100", "--rounds", "2"]),
+    #{<<"rounds">> := 2, <<"counts">> := [First, Second]} = last_json_line(Out),
+    #{<<"running_per_s_rounds">> := [F1, F2], <<"running_per_s">> := FRate, <<"vs_first">> := FVs} = First,
+    #{<<"running_per_s_rounds">> := [S1, S2], <<"running_per_s">> := SRate, <<"vs_first">> := SVs,
+      <<"vs_first_range">> := Range} = Second,
+    ?assertBitwise((F1 + F2) / 2, FRate),
+    ?assertBitwise((S1 + S2) / 2, SRate),
+    ?assertBitwise(1.0, FVs),
+    ?assertBitwise((S1 / F1 + S2 / F2) / 2, SVs),
+    ?assertBitwise(lists:sort([S1 / F1, S2 / F2]), Range),
+    ?assertMatch({match, _}, re:run(Out, "\\| 60 \\| [0-9]+ \\| [0-9]+ \\| [^|]+ \\| [^|]+ \\| [0-9.]+ \\([0-9.]+-[0-9.]+\\) \\|")),
+    [?assertMatch({match, _}, re:run(Err, Line))
+     || Line <- ["round 1 of 2: 20 spheres", "round 1 of 2: 60 spheres", "round 2 of 2: 60 spheres",
+                 "round 2 of 2: 20 spheres"]],
+    %% the second round runs the counts the other way round
+    {match, [{R2a, _}]} = re:run(Err, "round 2 of 2: 60 spheres"),
+    {match, [{R2b, _}]} = re:run(Err, "round 2 of 2: 20 spheres"),
+    ?assert(R2a < R2b).
 
 %% The machine's own scaling: one JSON line with every pair's times, whose
 %% ratios give the median and the range, and the schedulers put back.

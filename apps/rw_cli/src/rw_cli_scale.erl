@@ -8,30 +8,45 @@
 %% quarter, half and three quarters of the way. Small gases run longer, so
 %% that each run computes at least ?MIN_WORK body-substeps: half a second
 %% of 500 spheres swings by a quarter with the host, and the 500 is what
-%% the others are compared with.
+%% the others are compared with. With several rounds every count runs once
+%% a round, in the opposite order each round, so that the host's drift
+%% falls on all alike; each count's rates are the medians of its rounds,
+%% and its ratio to the first count the median of the rounds' ratios.
 -module(rw_cli_scale).
 -export([bench/1, scene/1]).
 
 -define(COUNTS, [500, 2000, 5000, 10000, 20000]).
--define(VALUE_FLAGS, ["--counts", "--until"]).
+-define(VALUE_FLAGS, ["--counts", "--until", "--rounds"]).
 -define(DENSITY, 2.0).
 -define(MIN_WORK, 5000000).
 
 -spec bench([string()]) -> 0.
 bench(Args) ->
-    #{counts := Counts, until := Until} = parse(Args, #{counts => ?COUNTS, until => 500}),
+    #{counts := Counts, until := Until, rounds := Rounds} = parse(Args, #{counts => ?COUNTS, until => 500, rounds => 1}),
     io:put_chars(["| spheres | simulated (ms) | wall (ms) | body-substeps/s | once running | vs the first | "
                   "memory per body at 1/4, 1/2, 3/4 (KiB) |\n|---:|---:|---:|---:|---:|---:|---|\n"]),
-    Rows = lists:foldl(fun(N, Acc) -> Acc ++ [row(N, simulated(N, Until), Acc)] end, [], Counts),
-    io:put_chars([jiffy:encode(#{until_ms => Until, density_per_m3 => ?DENSITY, counts => Rows,
+    %% each round's runs by count
+    Runs = [maps:from_list([{N, run(N, simulated(N, Until), Round, Rounds)} || N <- order(Counts, Round)])
+            || Round <- lists:seq(1, Rounds)],
+    [First | _] = Counts,
+    Rows = [row(N, [maps:get(N, R) || R <- Runs], [maps:get(First, R) || R <- Runs]) || N <- Counts],
+    io:put_chars([jiffy:encode(#{until_ms => Until, density_per_m3 => ?DENSITY, rounds => Rounds, counts => Rows,
                                  schedulers => erlang:system_info(schedulers)}), $\n]),
     0.
+
+%% The counts in the order of round Round: as given, then backwards.
+order(Counts, Round) when Round rem 2 =:= 1 -> Counts;
+order(Counts, _Round) -> lists:reverse(Counts).
 
 parse([], O) -> O;
 parse(["--counts", V | Rest], O) ->
     Counts = [rw_cli_args:pos_int("--counts", C) || C <- string:split(V, ",", all)],
-    parse(Rest, O#{counts => Counts});
+    case Counts -- lists:usort(Counts) of
+        [] -> parse(Rest, O#{counts => Counts});
+        [Twice | _] -> throw({usage, "--counts names " ++ integer_to_list(Twice) ++ " twice"})
+    end;
 parse(["--until", V | Rest], O) -> parse(Rest, O#{until => rw_cli_args:pos_ms("--until", V)});
+parse(["--rounds", V | Rest], O) -> parse(Rest, O#{rounds => rw_cli_args:pos_int("--rounds", V)});
 parse([[$- | _] = Flag | _], _) -> rw_cli_args:bad_flag(Flag, ?VALUE_FLAGS);
 parse([Extra | _], _) -> throw({usage, "unexpected argument " ++ Extra}).
 
@@ -51,7 +66,10 @@ scene(N) ->
                              <<"seed">> => 2013, <<"min">> => [-H, -H, -H], <<"max">> => [H, H, H],
                              <<"radius">> => 0.25, <<"mass">> => 1.0, <<"speed">> => 4.0}]}.
 
-row(N, Until, Before) ->
+%% One run of the gas of N spheres to Until: its wall time, its rates
+%% over the whole run and once running, its memory per body; a line on
+%% stderr says so.
+run(N, Until, Round, Rounds) ->
     {ok, Scene} = rw_scene:from_map(scene(N), #{overrides => #{duration_ms => Until}}),
     erlang:garbage_collect(),
     Base = erlang:memory(total),
@@ -65,16 +83,42 @@ row(N, Until, Before) ->
                    [{T1, G1} | _] -> {Wall - T1, Until - G1};
                    [] -> {Wall, Until}
                end,
-    Rate = N * Until / max(1, Wall) * 1000,
     Running = N * Gs / max(1, Ts) * 1000,
     PerBody = fun(M) -> (M - Base) / N / 1024 end,
     At = fun(G0) -> case [M || {_, G, M} <- Samples, G >= G0] of [M1 | _] -> PerBody(M1); [] -> 0.0 end end,
-    {Quarter, Mid, End} = {At(Until div 4), At(Until div 2), At(3 * Until div 4)},
-    Vs = case Before of [] -> 1.0; [#{running_per_s := R0} | _] -> Running / R0 end,
-    io:format("| ~b | ~b | ~b | ~.3g | ~.3g | ~.2f | ~.1f / ~.1f / ~.1f |~n",
-              [N, Until, Wall, Rate, Running, Vs, Quarter, Mid, End]),
-    #{spheres => N, simulated_ms => Until, wall_ms => Wall, body_substeps_per_s => Rate, running_per_s => Running, vs_first => Vs,
-      kib_per_body => [Quarter, Mid, End]}.
+    io:format(standard_error, "round ~b of ~b: ~b spheres, ~.3g body-substeps/s once running~n",
+              [Round, Rounds, N, Running]),
+    #{wall_ms => Wall, body_substeps_per_s => N * Until / max(1, Wall) * 1000, running_per_s => Running,
+      simulated_ms => Until, kib_per_body => [At(Until div 4), At(Until div 2), At(3 * Until div 4)]}.
+
+%% The row of N spheres from its runs, one a round, and those of the first
+%% count in the same rounds: medians, the median of the rounds' ratios to
+%% the first (and their range), the memory of the last round.
+row(N, [#{simulated_ms := Until} | _] = Runs, FirstRuns) ->
+    Median = fun(Key) -> median([maps:get(Key, R) || R <- Runs]) end,
+    Wall = round(Median(wall_ms)),
+    Ratios = [maps:get(running_per_s, R) / maps:get(running_per_s, F) || {R, F} <- lists:zip(Runs, FirstRuns)],
+    Vs = median(Ratios),
+    [Quarter, Mid, End] = maps:get(kib_per_body, lists:last(Runs)),
+    VsText = case Ratios of
+                 [_] -> io_lib:format("~.2f", [Vs]);
+                 _ -> io_lib:format("~.2f (~.2f-~.2f)", [Vs, lists:min(Ratios), lists:max(Ratios)])
+             end,
+    io:format("| ~b | ~b | ~b | ~.3g | ~.3g | ~s | ~.1f / ~.1f / ~.1f |~n",
+              [N, Until, Wall, Median(body_substeps_per_s), Median(running_per_s), VsText,
+               Quarter, Mid, End]),
+    #{spheres => N, simulated_ms => Until, wall_ms => Wall, body_substeps_per_s => Median(body_substeps_per_s),
+      running_per_s => Median(running_per_s), vs_first => Vs, vs_first_range => [lists:min(Ratios), lists:max(Ratios)],
+      running_per_s_rounds => [maps:get(running_per_s, R) || R <- Runs], kib_per_body => [Quarter, Mid, End]}.
+
+%% The middle value, or the mean of the middle two.
+median(Xs) ->
+    Sorted = lists:sort(Xs),
+    Len = length(Sorted),
+    case Len rem 2 of
+        1 -> lists:nth(Len div 2 + 1, Sorted);
+        0 -> (lists:nth(Len div 2, Sorted) + lists:nth(Len div 2 + 1, Sorted)) / 2
+    end.
 
 %% {Ms since the start, GVT, memory} every 50 ms until the run is done.
 sample(Sim, T0, Acc) ->
