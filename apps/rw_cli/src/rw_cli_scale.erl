@@ -95,10 +95,10 @@ run(N, Until, Round, Rounds) ->
 %% count in the same rounds: medians, the median of the rounds' ratios to
 %% the first (and their range), the memory of the last round.
 row(N, [#{simulated_ms := Until} | _] = Runs, FirstRuns) ->
-    Median = fun(Key) -> median([maps:get(Key, R) || R <- Runs]) end,
+    Median = fun(Key) -> rw_machine:median([maps:get(Key, R) || R <- Runs]) end,
     Wall = round(Median(wall_ms)),
     Ratios = [maps:get(running_per_s, R) / maps:get(running_per_s, F) || {R, F} <- lists:zip(Runs, FirstRuns)],
-    Vs = median(Ratios),
+    Vs = rw_machine:median(Ratios),
     [Quarter, Mid, End] = maps:get(kib_per_body, lists:last(Runs)),
     VsText = case Ratios of
                  [_] -> io_lib:format("~.2f", [Vs]);
@@ -110,15 +110,6 @@ row(N, [#{simulated_ms := Until} | _] = Runs, FirstRuns) ->
     #{spheres => N, simulated_ms => Until, wall_ms => Wall, body_substeps_per_s => Median(body_substeps_per_s),
       running_per_s => Median(running_per_s), vs_first => Vs, vs_first_range => [lists:min(Ratios), lists:max(Ratios)],
       running_per_s_rounds => [maps:get(running_per_s, R) || R <- Runs], kib_per_body => [Quarter, Mid, End]}.
-
-%% The middle value, or the mean of the middle two.
-median(Xs) ->
-    Sorted = lists:sort(Xs),
-    Len = length(Sorted),
-    case Len rem 2 of
-        1 -> lists:nth(Len div 2 + 1, Sorted);
-        0 -> (lists:nth(Len div 2, Sorted) + lists:nth(Len div 2 + 1, Sorted)) / 2
-    end.
 
 %% {Ms since the start, GVT, memory} every 50 ms until the run is done.
 sample(Sim, T0, Acc) ->

@@ -5,7 +5,7 @@
 %% changes by the minute, so the engine's speedups are read against this
 %% (`rigidwarp bench machine`, scripts/paper-scenes, Fig. 7 of make bench).
 -module(rw_machine).
--export([parallel_ms/2, scaling/1]).
+-export([parallel_ms/2, scaling/1, median/1]).
 
 %% Wall ms for Procs processes, each doing the same fixed work, on
 %% Schedulers schedulers (the schedulers online are put back after).
@@ -35,6 +35,8 @@ scaling(Repeats) ->
 churn(0, M) -> map_size(M);
 churn(N, M) -> churn(N - 1, M#{N band 63 => lists:seq(1, 8)}).
 
+%% The middle value, or the mean of the middle two (also bench scale's).
+-spec median([number(), ...]) -> number().
 median(Xs) ->
     S = lists:sort(Xs),
     N = length(S),
