@@ -102,7 +102,7 @@ options() ->
      {max_restarts, non_neg, "restarts after faults allowed within restart_period_ms (default 5)"},
      {restart_period_ms, count, "the period of the restart budget (default 10000)"},
      {checkpoint_ms, non_neg, "wall time between checkpoints (default 500)"},
-     {ring_size, count, "latest frames start/2 keeps readable (default 1024, at most 32768 body records, 4 frames at least)"},
+     {ring_size, count, "latest frames start/2 keeps readable (default 1024; fewer past 32768 body records, but not below 4 for that)"},
      {frames, path, "run/2: write the frames as JSON Lines to this file (\"-\": stdout)"},
      {resume, boolean, "run/2: continue the interrupted run that wrote frames"},
      {on_frame, callback, "run/2: fun(Frame) -> _, for every frame in order"},

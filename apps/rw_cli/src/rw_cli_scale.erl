@@ -97,19 +97,21 @@ run(N, Until, Round, Rounds) ->
 row(N, [#{simulated_ms := Until} | _] = Runs, FirstRuns) ->
     Median = fun(Key) -> rw_machine:median([maps:get(Key, R) || R <- Runs]) end,
     Wall = round(Median(wall_ms)),
+    Rate = Median(body_substeps_per_s),
+    Running = Median(running_per_s),
     Ratios = [maps:get(running_per_s, R) / maps:get(running_per_s, F) || {R, F} <- lists:zip(Runs, FirstRuns)],
     Vs = rw_machine:median(Ratios),
+    {Min, Max} = {lists:min(Ratios), lists:max(Ratios)},
     [Quarter, Mid, End] = maps:get(kib_per_body, lists:last(Runs)),
     VsText = case Ratios of
                  [_] -> io_lib:format("~.2f", [Vs]);
-                 _ -> io_lib:format("~.2f (~.2f-~.2f)", [Vs, lists:min(Ratios), lists:max(Ratios)])
+                 _ -> io_lib:format("~.2f (~.2f-~.2f)", [Vs, Min, Max])
              end,
     io:format("| ~b | ~b | ~b | ~.3g | ~.3g | ~s | ~.1f / ~.1f / ~.1f |~n",
-              [N, Until, Wall, Median(body_substeps_per_s), Median(running_per_s), VsText,
-               Quarter, Mid, End]),
-    #{spheres => N, simulated_ms => Until, wall_ms => Wall, body_substeps_per_s => Median(body_substeps_per_s),
-      running_per_s => Median(running_per_s), vs_first => Vs, vs_first_range => [lists:min(Ratios), lists:max(Ratios)],
-      running_per_s_rounds => [maps:get(running_per_s, R) || R <- Runs], kib_per_body => [Quarter, Mid, End]}.
+              [N, Until, Wall, Rate, Running, VsText, Quarter, Mid, End]),
+    #{spheres => N, simulated_ms => Until, wall_ms => Wall, body_substeps_per_s => Rate, running_per_s => Running,
+      vs_first => Vs, vs_first_range => [Min, Max], running_per_s_rounds => [maps:get(running_per_s, R) || R <- Runs],
+      kib_per_body => [Quarter, Mid, End]}.
 
 %% {Ms since the start, GVT, memory} every 50 ms until the run is done.
 sample(Sim, T0, Acc) ->
