@@ -68,7 +68,7 @@ measured(Scene, Repeats) ->
                   Walls = maps:from_list([{S, wall(Scene, S)} || S <- Order]),
                   maps:get(1, Walls) / maps:get(2, Walls)
               end || R <- lists:seq(1, Repeats)],
-    lists:nth((Repeats + 1) div 2, lists:sort(Ratios)).
+    rw_machine:median(Ratios).
 
 wall(Scene, Schedulers) ->
     {ok, #{wall_ms := Ms}} = rw_timewarp:run(Scene, #{schedulers => Schedulers}),
