@@ -35,7 +35,7 @@ scaling(Repeats) ->
 churn(0, M) -> map_size(M);
 churn(N, M) -> churn(N - 1, M#{N band 63 => lists:seq(1, 8)}).
 
-%% The middle value, or the mean of the middle two (also bench scale's).
+%% The middle value, or the mean of the middle two (every bench's median).
 -spec median([number(), ...]) -> number().
 median(Xs) ->
     S = lists:sort(Xs),
