@@ -12,12 +12,12 @@
 -include("rw_test.hrl").
 -export([all/0, suite/0, init_per_suite/1, end_per_suite/1]).
 -export([random_kills_change_no_frame/1, two_kills_at_once/1, past_the_budget_crashes_promptly/1,
-         api_after_crash_and_stop/1, schedulers_are_lent_not_taken/1]).
+         api_after_crash_and_stop/1, schedulers_are_lent_not_taken/1, sparse_records_keep_whole_checkpoints/1]).
 
 suite() -> [{timetrap, {minutes, 10}}].
 
 all() -> [random_kills_change_no_frame, two_kills_at_once, past_the_budget_crashes_promptly, api_after_crash_and_stop,
-          schedulers_are_lent_not_taken].
+          schedulers_are_lent_not_taken, sparse_records_keep_whole_checkpoints].
 
 %% Contact-heavy scenes, each over a part where contacts go on all along.
 -define(SCENES, [{"bouncing_50_250", scenario, 1000}, {"pile_40", test, 1200}, {"rain_on_logs", test, 800},
@@ -122,6 +122,36 @@ no_leak(Tries) ->
         true -> true;
         false -> timer:sleep(50), no_leak(Tries - 1)
     end.
+
+%% A run whose frames nobody reads keeps its bodies' records only where the
+%% engine reads them (rw_commits:commit/4): every checkpoint, announced a
+%% stride ahead, still holds every body's whole state, bit for bit the
+%% reference's at that time, while processes are killed and the run restarts
+%% from them.
+sparse_records_keep_whole_checkpoints(_Config) ->
+    {ok, Scene} = rigidwarp:load(rw_test_lib:scenario("bouncing_50_250.json"), #{until => 3000}),
+    Self = self(),
+    {ok, _} = rw_reference:run(Scene, #{on_checkpoint => fun(C) -> Self ! {reference, C} end, checkpoint_ms => 0}),
+    Reference = maps:from_list([{T, C} || {checkpoint, T, _, _} = C <- drain(reference)]),
+    Prop = ?FORALL({Kills, CheckpointMs}, {list(kill()), range(0, 40)},
+                   begin
+                       Before = [P || {_, P, _, _} <- supervisor:which_children(rw_sims_sup)],
+                       Killer = spawn_link(fun() -> killer(Self, Before, lists:sublist(Kills, 3), 0) end),
+                       Result = rw_timewarp:run(Scene, #{on_checkpoint => fun(C) -> Self ! {checkpoint, C} end,
+                                                         checkpoint_ms => CheckpointMs, max_restarts => 100}),
+                       Killer ! stop,
+                       receive {killed, _} -> ok end,
+                       Checkpoints = drain(checkpoint),
+                       ?WHENFAIL(ct:pal("checkpoints every ~b ms, kills ~p: ~P~ncheckpoints at ~w",
+                                        [CheckpointMs, Kills, Result, 8, [T || {checkpoint, T, _, _} <- Checkpoints]]),
+                                 conjunction([{ok, element(1, Result) =:= ok},
+                                              {some, length(Checkpoints) >= 2},
+                                              {whole, lists:all(fun({checkpoint, T, _, _} = C) ->
+                                                                        rw_test_lib:bitwise_equal(maps:get(T, Reference), C)
+                                                                end, Checkpoints)},
+                                              {no_leak, no_leak()}]))
+                   end),
+    true = proper:quickcheck(Prop, [{numtests, 12}, {to_file, user}, long_result]).
 
 %%% Examples
 

@@ -51,7 +51,12 @@
     stats :: rw_stats:counters() | undefined,
     profile = false :: boolean(),             % count the engine's stages (rw_stats)
     lvts :: atomics:atomics_ref() | undefined,   % every body's LVT, at rw_sim:lvt_slot(Idx)
-    gvt_now :: atomics:atomics_ref() | undefined, % GVT (slot 1), which bodies read when they step
+    %% GVT (slot 1), which bodies read when they step, and the next
+    %% checkpoint's sync point (slot 2, 0 for none: rw_commits:commit/4)
+    gvt_now :: atomics:atomics_ref() | undefined,
+    %% nobody reads this run's frames: bodies commit their records only
+    %% where the engine reads them (rw_commits:commit/4)
+    sparse_records = false :: boolean(),
     %% contact groups (rw_regroup): the most bodies in one group, and how
     %% groups are planned (eager: tests only)
     group_max = 1 :: pos_integer(),

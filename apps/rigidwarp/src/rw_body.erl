@@ -217,12 +217,14 @@ effect({watch, PIdx, Lvt}, #data{sim = #sim{owners = Owners}} = D) ->
     rw_trace:send(Pid, {watch, self(), Lvt});
 effect({publish_lvt, Idxs, Lvt}, #data{sim = #sim{lvts = Lvts}}) ->
     publish(Idxs, Lvts, Lvt);
-effect({commit, T, Records}, #data{sim = #sim{profile = false} = Sim}) ->
+effect({commit, T, Records, Planned}, #data{sim = #sim{profile = false} = Sim}) ->
     ok = rw_trace:committed(T),
-    rw_commits:commit(Sim, T, Records);
-effect({commit, T, Records}, #data{sim = Sim}) ->
+    rw_commits:commit(Sim, T, Records, Planned);
+effect({commit, T, Records, Planned}, #data{sim = Sim}) ->
     ok = rw_trace:committed(T),
-    profiled(Sim, gvt_reductions, fun() -> rw_commits:commit(Sim, T, Records) end);
+    profiled(Sim, gvt_reductions, fun() -> rw_commits:commit(Sim, T, Records, Planned) end);
+effect({keep, Records}, #data{sim = Sim}) ->
+    rw_commits:keep(Sim, Records);
 effect({withdraw, Times, Idxs}, #data{sim = Sim}) ->
     rw_commits:withdraw(Sim, Times, Idxs);
 effect({count, Name, N}, #data{sim = #sim{stats = Stats}}) ->

@@ -8,7 +8,7 @@
 %% back meanwhile).
 -module(rw_commits).
 -include("rigidwarp.hrl").
--export([record/8, unpack/1, motions_at/3, commit/3, withdraw/3, complete/2, count/2, records_at/2, forget_through/2, forget/2, select_at/2, states_at/2, delete_at/2, keep_only/2]).
+-export([record/8, unpack/1, motions_at/3, commit/4, keep/2, checkpoint_at/2, withdraw/3, complete/2, count/2, records_at/2, forget_through/2, forget/2, select_at/2, states_at/2, delete_at/2, keep_only/2]).
 -export_type([record/0]).
 
 %% A body's committed state at a sync point, keyed by time and idx: its id
@@ -63,14 +63,38 @@ unpack({_, Id, <<Flags, PX:64/float, PY:64/float, PZ:64/float, VX:64/float, VY:6
         {?RESPONDED, <<AX:64/float, AY:64/float, AZ:64/float>>} -> {{Id, P, V, undefined, undefined}, {{AX, AY, AZ}, undefined}}
     end.
 
-%% Commit the records of an entity's members at sync point T.
--spec commit(#sim{}, non_neg_integer(), [record()]) -> ok.
-commit(#sim{records = Records, counts = Counts, n = N, gvt = Gvt}, T, Rows) ->
-    true = ets:insert(Records, Rows),
+%% Commit the records of an entity's members at sync point T. With sparse
+%% records (#sim.sparse_records: nobody reads the frames) they are kept
+%% only where the engine reads them: at the end, at the next checkpoint's
+%% sync point (checkpoint_at/2) and where the regroup plan may read them
+%% (Planned, as the entity knows: rw_entity). Inserting every body's record
+%% at every sync point into the ordered table, and deleting it again, is a
+%% good part of a gas's work (doc/performance.md).
+-spec commit(#sim{}, non_neg_integer(), [record()], boolean()) -> ok.
+commit(#sim{records = Records, counts = Counts, n = N, gvt = Gvt} = Sim, T, Rows, Planned) ->
+    _ = is_kept(Sim, T, Planned) andalso ets:insert(Records, Rows),
     case ets:update_counter(Counts, T, {2, length(Rows)}, {T, 0, 0}) of
         N -> rw_trace:send(Gvt, {complete, T});
         _ -> ok
     end.
+
+is_kept(#sim{sparse_records = false}, _T, _Planned) -> true;
+is_kept(_Sim, _T, true) -> true;
+is_kept(#sim{end_t = End}, End, _Planned) -> true;
+is_kept(#sim{gvt_now = Now}, T, false) -> atomics:get(Now, 2) =:= T.
+
+%% Keep the records of an entity's members at sync point T, committed
+%% before: the regroup plan is to read them after all.
+-spec keep(#sim{}, [record()]) -> ok.
+keep(#sim{records = Records}, Rows) ->
+    true = ets:insert(Records, Rows),
+    ok.
+
+%% With sparse records, the sync point T of the next checkpoint, whose
+%% records every body keeps: announced once no body can have committed it
+%% yet (past LVT_ub).
+-spec checkpoint_at(#sim{}, non_neg_integer()) -> ok.
+checkpoint_at(#sim{gvt_now = Now}, T) -> atomics:put(Now, 2, T).
 
 %% Take back the commits of members Idxs at the sync points Times.
 -spec withdraw(#sim{}, [non_neg_integer()], [non_neg_integer()]) -> ok.

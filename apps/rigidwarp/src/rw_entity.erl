@@ -82,7 +82,8 @@
         {send, addr(), term()}                              % to another entity or a watcher
       | {watch, Idx :: non_neg_integer(), Lvt :: non_neg_integer()}  % to the entity stepping body Idx
       | {publish_lvt, [non_neg_integer()], non_neg_integer()}
-      | {commit, non_neg_integer(), [rw_commits:record()]}
+      | {commit, non_neg_integer(), [rw_commits:record()], Planned :: boolean()}  % (rw_commits:commit/4)
+      | {keep, [rw_commits:record()]}                     % records committed before, to keep after all
       | {withdraw, [non_neg_integer()], [non_neg_integer()]}
       | {count, rw_stats:name(), non_neg_integer()}
       | {met, non_neg_integer(), non_neg_integer(), non_neg_integer()}
@@ -147,6 +148,7 @@
     window = 1 :: pos_integer(),
     wake_at = none :: none | integer(),         % the GVT the GVT process will wake this entity at
     touched = rw_neighbour:new() :: rw_neighbour:touched(),
+    met_at = -1 :: integer(),                   % the latest time a member touched an outside body
     watching = none :: none | {non_neg_integer(), non_neg_integer()},
     %% true while the entity waits in step with no step due (for a partner
     %% to reach its LVT, or for GVT): a watch request cannot end that wait,
@@ -418,10 +420,10 @@ swap({A, B}) -> {B, A}.
 
 %% Member Idx touches the outside body PIdx at T (rw_neighbour); pairs
 %% that meet often are said so (for rw_regroup).
-touch(Idx, PIdx, T, #e{touched = Touched0} = E) ->
+touch(Idx, PIdx, T, #e{touched = Touched0, met_at = MetAt} = E) ->
     case rw_neighbour:touch(Idx, PIdx, T, Touched0) of
-        {Touched, none} -> E#e{touched = Touched};
-        {Touched, {A, B, At}} -> emit({met, A, B, At}, E#e{touched = Touched})
+        {Touched, none} -> E#e{touched = Touched, met_at = max(MetAt, T)};
+        {Touched, {A, B, At}} -> emit({met, A, B, At}, E#e{touched = Touched, met_at = max(MetAt, T)})
     end.
 
 %% Publish the LVT (at every member's slot); wake the processes waiting
@@ -549,14 +551,27 @@ commit(T, States, Posts, E) ->
 uncommitted(T, #e{gvt = G, timeline = TL, conf = #conf{cal = Cal}}) ->
     T > G andalso rw_sync:is_sync(T, Cal) andalso not rw_timeline:is_committed(T, TL).
 
-commit_now(T, States, Posts, #e{g = #g{spheres = Spheres}, timeline = TL} = E) ->
-    Records = [begin
-                   #sphere{idx = Idx, id = Id} = element(K, Spheres),
-                   #st{p = P, v = V0, q = Q, w = W0} = element(K, States),
-                   {V, W, _U} = element(K, Posts),
-                   rw_commits:record(T, Idx, Id, P, V, Q, W, {V0, W0})
-               end || K <- lists:seq(1, tuple_size(Spheres))],
-    emit({commit, T, Records}, E#e{timeline = rw_timeline:commit(T, TL)}).
+commit_now(T, States, Posts, #e{timeline = TL} = E) ->
+    emit({commit, T, records(T, States, Posts, E), planned(T, E)}, E#e{timeline = rw_timeline:commit(T, TL)}).
+
+records(T, States, Posts, #e{g = #g{spheres = Spheres}}) ->
+    [begin
+         #sphere{idx = Idx, id = Id} = element(K, Spheres),
+         #st{p = P, v = V0, q = Q, w = W0} = element(K, States),
+         {V, W, _U} = element(K, Posts),
+         rw_commits:record(T, Idx, Id, P, V, Q, W, {V0, W0})
+     end || K <- lists:seq(1, tuple_size(Spheres))].
+
+%% May the regroup plan at T read this entity's records there? It reads
+%% those of every member of a group (a group's, or a body's that joins one
+%% at T) and of the bodies of pairs that met in the period before T: any
+%% pair that met since a record was kept without it (a partner's late
+%% touch) the plan leaves out until the next regroup point.
+planned(T, #e{g = #g{spheres = Spheres, moves = Moves}, met_at = MetAt, conf = #conf{cal = Cal}}) ->
+    case rw_sync:period(Cal) of
+        0 -> false;
+        P -> T rem P =:= 0 andalso (tuple_size(Spheres) > 1 orelse is_map_key(T, Moves) orelse MetAt >= T - P)
+    end.
 
 %% An entity waiting at LVT_ub (or at the end time) commits its LVT once
 %% nothing is awaited there; a later event at LVT withdraws it again.
@@ -612,8 +627,21 @@ on_regroup(S, Move, #e{lvt = Lvt} = E0) ->
     E = add_move(S, Move, E0),
     case Lvt > S of
         true -> roll_back(S, {stop_at, S}, E);
-        false -> stop_at(S, E)
+        false -> stop_at(S, keep_at(S, E))
     end.
+
+%% An entity at S that has committed S already, maybe without keeping its
+%% records: the plan at S reads them (it joins a group there).
+keep_at(S, #e{lvt = S, timeline = TL, conf = #conf{dt = Dt}} = E) ->
+    case rw_timeline:is_committed(S, TL) of
+        true ->
+            States = rw_timeline:state_at(S, Dt, TL),
+            {Posts, E1} = posts(S, States, E),
+            emit({keep, records(S, States, Posts, E1)}, E1);
+        false ->
+            E
+    end;
+keep_at(_S, E) -> E.
 
 %% Stop at the regroup point S, and tell the GVT process so.
 stop_at(S, #e{g = #g{stop_at = StopAt} = G} = E) ->

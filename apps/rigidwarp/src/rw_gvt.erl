@@ -64,6 +64,8 @@
     sweeper :: pid(),                         % forgets records (rw_sweeper)
     checkpoint_ms :: non_neg_integer(),
     checkpoint_due :: integer(),              % monotonic ms
+    %% with sparse records, the sync point of the checkpoint announced
+    checkpoint_at = none :: none | non_neg_integer(),
     radii :: #{non_neg_integer() => float()},
     groups :: rw_regroup:groups(),                      % the groups planned last
     pids = none :: none | #{non_neg_integer() => pid()},  % body idx => its process, once needed
@@ -274,6 +276,23 @@ finish(T, #s{sim = #sim{records = Records, ring = Ring, sync = Cal} = Sim} = S) 
 
 %% Every checkpoint_ms of wall time, a frame is also a checkpoint: the
 %% whole state of every body, from which the run restarts after a fault.
+%% With sparse records the bodies keep every record only at the frame
+%% announced as the next checkpoint's, the first one that no body can have
+%% committed yet (past LVT_ub), so a checkpoint comes about a stride later.
+checkpoint(T, Ms, #s{sim = #sim{sparse_records = true, records = Records}, checkpoint_at = T} = S) ->
+    ok = notify(S#s.run, {rw_checkpoint, self(), {checkpoint, T, Ms, rw_commits:states_at(T, Records)}}),
+    S#s{checkpoint_due = erlang:monotonic_time(millisecond) + S#s.checkpoint_ms, checkpoint_at = none};
+checkpoint(_T, _Ms, #s{sim = #sim{sparse_records = true, end_t = End, sync = Cal, scene = #scene{stride = Stride}} = Sim,
+                       checkpoint_at = none, checkpoint_due = Due, gvt = G} = S) ->
+    At = rw_sync:frame_after(G + Stride, Cal),
+    case At < End andalso erlang:monotonic_time(millisecond) >= Due of
+        true ->
+            ok = rw_commits:checkpoint_at(Sim, At),
+            S#s{checkpoint_at = At};
+        false ->
+            S
+    end;
+checkpoint(_T, _Ms, #s{sim = #sim{sparse_records = true}} = S) -> S;
 checkpoint(T, Ms, #s{sim = #sim{records = Records, end_t = End}, checkpoint_due = Due} = S) when T < End ->
     Now = erlang:monotonic_time(millisecond),
     case Now >= Due of

@@ -28,7 +28,7 @@
 %% decide/4 is what the GVT process does at a regroup point: the groups
 %% from the committed states, and whom to tell what; it carries that out.
 -module(rw_regroup).
--export([new/3, new/4, by_site/2, quiet/2, wanted/2, decide/4, plan/4, plan/5, moves/3]).
+-export([new/3, new/4, by_site/2, quiet/2, wanted/2, members/1, decide/4, plan/4, plan/5, moves/3]).
 -export_type([body/0, leaders/0, move/0, pairs/0, groups/0]).
 
 %% A body's committed state at the regroup point: idx, radius, position,
@@ -95,6 +95,10 @@ quiet(Met, #groups{mode = Mode, members = Members}) ->
 wanted(_Met, #groups{mode = eager}) -> all;
 wanted(_Met, #groups{landing = true, members = Members}) when map_size(Members) > 0 -> all;
 wanted(Met, #groups{members = Members}) -> lists:sort(maps:keys(seen(Met, Members))).
+
+%% The bodies in groups of two or more, in idx order.
+-spec members(groups()) -> [non_neg_integer()].
+members(#groups{members = Members}) -> lists:sort(maps:keys(Members)).
 
 %% At a regroup point: the groups from every body's committed state there
 %% and the pairs that met often lately, and what each entity whose group

@@ -43,7 +43,7 @@
 -define(DEFAULT_RESTART_PERIOD_MS, 10000).
 %% The options the simulation's tree takes.
 -define(SIM_KEYS, [groups, group_max, regroup_every, grouping, profile, delay, watchdog_ms, ring_size,
-                   checkpoint_ms, trace]).
+                   checkpoint_ms, trace, read_frames]).
 
 -record(r, {
     scene :: #scene{},                        % from the run's first start time
@@ -109,7 +109,7 @@ is_run(Pid) when is_pid(Pid), node(Pid) =:= node() ->
     end;
 is_run(_) -> false.
 
--spec subscribe(pid(), pid(), none | times | frames, boolean()) -> ok.
+-spec subscribe(pid(), pid(), none | times | frames, boolean()) -> ok | {error, string()}.
 subscribe(Run, Pid, What, Checkpoints) -> gen_server:call(Run, {subscribe, {Pid, What, Checkpoints}}).
 
 -spec status(pid()) -> status().
@@ -215,6 +215,8 @@ teardown(#r{sup = Sup, watched = W} = R0) ->
     R#r{sup = none, watched = #{}}.
 
 -spec handle_call(term(), gen_server:from(), #r{}) -> {reply, term(), #r{}}.
+handle_call({subscribe, {_, frames, _}}, _From, #r{opts = #{read_frames := false}} = R) ->
+    {reply, {error, "this run keeps no frames to read"}, R};
 handle_call({subscribe, {Pid, What, _} = Sub}, _From, #r{subs = Subs, sim = Sim} = R) ->
     _ = case What =:= frames andalso not lists:keymember(frames, 2, Subs) andalso R#r.sup =/= none of
             true -> rw_gvt:send_frames(Sim#sim.gvt);

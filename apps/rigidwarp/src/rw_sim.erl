@@ -17,6 +17,7 @@
                      %% all bodies near each other however they move
                      regroup_every => pos_integer(), grouping => persistent | eager,
                      profile => boolean(), delay => {Seed :: integer(), MaxMs :: non_neg_integer()},
+                     read_frames => boolean(),
                      trace => ets:tid(),
                      atom() => term()}.
 
@@ -42,7 +43,16 @@ new(#scene{spheres = Spheres, duration = End, frame = Frame, stride = Stride, st
          lvts = lvts(Spheres, Start),
          gvt_now = gvt_now(), group_max = maps:get(group_max, Opts, ?DEFAULT_GROUP_MAX),
          grouping = maps:get(grouping, Opts, persistent), delay = maps:get(delay, Opts, none),
-         trace = maps:get(trace, Opts, undefined)}.
+         trace = maps:get(trace, Opts, undefined),
+         sparse_records = sparse_records(Scene, Opts)}.
+
+%% Records only where the engine reads them: when nobody reads the frames,
+%% on one node, and when the regroup plan reads the records of group members
+%% and of bodies that met only (not under gravity, where a body may land on
+%% a group, nor when tests plan groups of everything).
+sparse_records(#scene{model = #model{gravity = Gravity}}, Opts) ->
+    not maps:get(read_frames, Opts, true) andalso Gravity =:= undefined
+        andalso maps:get(grouping, Opts, persistent) =:= persistent.
 
 %% Every body's LVT, at its start time until it publishes another.
 lvts(Spheres, Start) ->
@@ -82,7 +92,7 @@ for_bodies(#sim{scene = Scene} = Sim) -> Sim#sim{scene = Scene#scene{spheres = [
 lvt_slot(Idx) -> Idx * 8 + 1.
 
 gvt_now() ->
-    Ref = atomics:new(1, [{signed, true}]),
+    Ref = atomics:new(2, [{signed, true}]),
     ok = atomics:put(Ref, 1, -1),
     Ref.
 

@@ -5,7 +5,7 @@
 %% advances from one sync point to the next once every body has committed
 %% it; a body that waits for GVT asks to be woken at a sync point.
 -module(rw_sync).
--export([new/4, new/5, start/1, is_sync/2, next_at/2, is_frame/2, after_gvt/2, last_before/2, end_t/1, period/1]).
+-export([new/4, new/5, start/1, is_sync/2, next_at/2, is_frame/2, frame_after/2, after_gvt/2, last_before/2, end_t/1, period/1]).
 -export_type([calendar/0]).
 
 -record(cal, {
@@ -60,6 +60,10 @@ next_at(T, #cal{frame = F, stride = S, end_t = End, period = P}) ->
 %% Frames are written at frame times and at the end only.
 -spec is_frame(non_neg_integer(), calendar()) -> boolean().
 is_frame(T, #cal{frame = F, end_t = End}) -> T rem F =:= 0 orelse T =:= End.
+
+%% The first frame time after T.
+-spec frame_after(integer(), calendar()) -> non_neg_integer().
+frame_after(T, #cal{frame = F}) -> (T div F + 1) * F.
 
 %% The first sync point after G (G before the start: the start). GVT
 %% cannot pass it before every body has reached it.

@@ -18,6 +18,10 @@
                      %% all bodies near each other however they move
                      regroup_every => pos_integer(), grouping => persistent | eager,
                      watchdog_ms => pos_integer(), ring_size => pos_integer(), profile => boolean(),
+                     %% false: nobody reads this run's frames (nor subscribes to them),
+                     %% so that bodies keep their records only where the engine reads
+                     %% them (run/2 without on_frame: false)
+                     read_frames => boolean(),
                      %% record the run's tasks into this table (rw_trace), on one node
                      trace => ets:tid(),
                      delay => {Seed :: integer(), MaxMs :: non_neg_integer()},
@@ -27,7 +31,7 @@
                      on_checkpoint => fun((rw_reference:checkpoint()) -> any()),
                      on_progress => fun((map()) -> any())}.
 
--define(RUN_KEYS, [buckets, schedulers, nodes, migrate, groups, group_max, regroup_every, grouping, watchdog_ms, ring_size, profile,
+-define(RUN_KEYS, [buckets, schedulers, nodes, migrate, groups, group_max, regroup_every, grouping, watchdog_ms, ring_size, profile, read_frames,
                    trace, delay, max_restarts, restart_period_ms, checkpoint_ms, from]).
 
 %% Start a simulation; it runs on its own until the scene's end.
@@ -62,8 +66,9 @@ run(Scene, Opts) ->
     What = case maps:is_key(on_frame, Opts) of true -> frames; false -> times end,
     %% nobody reads the ring of a run (it has no handle to read it with):
     %% only the latest frame's records are kept, not the last 1024 frames'
-    %% (deleting those at the end would count in the run's wall time)
-    case start(Scene, maps:merge(#{ring_size => 1}, Opts#{owner => self(), subscribe => What})) of
+    %% (deleting those at the end would count in the run's wall time), and
+    %% without on_frame only those the engine reads itself
+    case start(Scene, maps:merge(#{ring_size => 1, read_frames => What =:= frames}, Opts#{owner => self(), subscribe => What})) of
         {ok, {rw_sim, Run, _} = H} ->
             Calls = #{frame => maps:get(on_frame, Opts, fun(_) -> ok end),
                       checkpoint => maps:get(on_checkpoint, Opts, fun(_) -> ok end),

@@ -4,6 +4,7 @@
 -module(rw_commits_tests).
 -include_lib("eunit/include/eunit.hrl").
 -define(assertBitwise(Expected, Actual), rw_test_lib:assert_bitwise(Expected, Actual, {?MODULE, ?LINE})).
+-include_lib("rigidwarp/include/rigidwarp.hrl").
 
 round_trip(P, V, Q, W, Pre) ->
     Record = rw_commits:record(30, 7, <<"b7">>, P, V, Q, W, Pre),
@@ -44,3 +45,32 @@ motions_and_frames_at_test() ->
     ok = rw_commits:delete_at(10, Records),
     ?assertEqual([], rw_commits:select_at(10, Records)),
     ?assertEqual(3, length(rw_commits:select_at(20, Records))).
+
+%% With sparse records a commit counts every member but keeps the records
+%% only where the engine reads them: where the entity says the regroup plan
+%% may, at the announced checkpoint's sync point and at the end; a run whose
+%% frames someone reads keeps them all.
+sparse_commits_test() ->
+    Sim = commits_sim(true),
+    ok = rw_commits:checkpoint_at(Sim, 30),
+    Row = fun(T, I) -> rw_commits:record(T, I, integer_to_binary(I), {1.0, 2.0, 3.0}, {0.0, 0.0, 0.0}, undefined, undefined,
+                                         {{0.0, 0.0, 0.0}, undefined}) end,
+    Commit = fun(T, Planned) -> ok = rw_commits:commit(Sim, T, [Row(T, 1), Row(T, 2)], Planned) end,
+    Commit(10, false),
+    Commit(20, true),
+    Commit(30, false),
+    Commit(40, false),
+    Commit(50, false),
+    ?assertEqual([0, 2, 2, 0, 2], [length(rw_commits:select_at(T, Sim#sim.records)) || T <- [10, 20, 30, 40, 50]]),
+    ?assertEqual([{2, 0} || _ <- [10, 20, 30, 40, 50]], [rw_commits:count(Sim, T) || T <- [10, 20, 30, 40, 50]]),
+    %% kept after all, once the plan is to read them
+    ok = rw_commits:keep(Sim, [Row(40, 1)]),
+    ?assertMatch([{<<"1">>, _, _, _, _}], rw_commits:select_at(40, Sim#sim.records)),
+    Every = commits_sim(false),
+    _ = [ok = rw_commits:commit(Every, T, [Row(T, 1)], false) || T <- [10, 20]],
+    ?assertEqual([1, 1], [length(rw_commits:select_at(T, Every#sim.records)) || T <- [10, 20]]).
+
+commits_sim(Sparse) ->
+    Now = atomics:new(2, [{signed, true}]),
+    #sim{records = ets:new(records, [ordered_set, public]), counts = ets:new(counts, [set, public]), n = 3, end_t = 50,
+         gvt = self(), gvt_now = Now, sparse_records = Sparse}.

@@ -70,6 +70,9 @@
     uniq = 0 :: non_neg_integer(),
     counts = #{} :: #{non_neg_integer() => integer()},
     records = #{} :: #{{non_neg_integer(), non_neg_integer()} => rw_reference:body_frame()},
+    %% the records an entity said the regroup plan may read (with sparse
+    %% records, the only ones kept besides checkpoints and the end)
+    planned = #{} :: #{{non_neg_integer(), non_neg_integer()} => true},
     met = #{} :: #{{non_neg_integer(), non_neg_integer()} => non_neg_integer()},
     gp :: #gvtp{},
     %% the checks' books
@@ -397,16 +400,21 @@ effect(I, {send, To, Msg}, M) -> enqueue(I, To, Msg, book(I, To, Msg, M));
 effect(I, {watch, PIdx, Lvt}, #m{owners = Owners} = M) -> enqueue(I, maps:get(PIdx, Owners), {watch, I, Lvt}, M);
 effect(_I, {publish_lvt, Idxs, Lvt}, #m{lvts = Lvts} = M) ->
     M#m{lvts = lists:foldl(fun(X, L) -> L#{X => Lvt} end, Lvts, Idxs)};
-effect(I, {commit, T, Rows}, #m{records = R, counts = C, n = N, gp = #gvtp{g = G}} = M0) ->
+effect(I, {commit, T, Rows, Planned}, #m{records = R, counts = C, n = N, gp = #gvtp{g = G}} = M0) ->
     M = case T > G of
             true -> M0;
             false -> fail(M0, {commit_at_or_before_gvt, I, T, G})
         end,
     Count = maps:get(T, C, 0) + length(Rows),
-    M1 = M#m{records = lists:foldl(fun({Key, _, _} = Row, Acc) -> Acc#{Key => element(1, rw_commits:unpack(Row))} end, R, Rows), counts = C#{T => Count}},
+    M1 = keep(Planned, Rows, M#m{records = lists:foldl(fun({Key, _, _} = Row, Acc) -> Acc#{Key => element(1, rw_commits:unpack(Row))} end, R, Rows), counts = C#{T => Count}}),
     case Count of
         N -> enqueue(I, gvt, {complete, T}, M1);
         _ -> M1
+    end;
+effect(I, {keep, Rows}, #m{records = R} = M) ->
+    case [Key || {Key, _, _} <- Rows, not is_map_key(Key, R)] of
+        [] -> keep(true, Rows, M);
+        Uncommitted -> fail(M, {kept_uncommitted, I, Uncommitted})
     end;
 effect(I, {withdraw, Times, Idxs}, #m{records = R, counts = C, gp = #gvtp{g = G}} = M) ->
     M1 = case [T || T <- Times, T =< G] of
@@ -414,7 +422,8 @@ effect(I, {withdraw, Times, Idxs}, #m{records = R, counts = C, gp = #gvtp{g = G}
              Committed -> fail(M, {committed_state_withdrawn, I, Committed, G})
          end,
     M1#m{counts = lists:foldl(fun(T, Acc) -> Acc#{T => maps:get(T, Acc, 0) - length(Idxs)} end, C, Times),
-         records = maps:without([{T, Idx} || T <- Times, Idx <- Idxs], R)};
+         records = maps:without([{T, Idx} || T <- Times, Idx <- Idxs], R),
+         planned = maps:without([{T, Idx} || T <- Times, Idx <- Idxs], M1#m.planned)};
 effect(_I, {count, _, _}, M) -> M;
 effect(_I, {met, A, B, T}, #m{met = Met} = M) -> M#m{met = Met#{{A, B} => T}};
 effect(I, {wake_at, At}, M) -> enqueue(I, gvt, {wake_at, I, At}, M);
@@ -496,12 +505,24 @@ finish(T, #m{scene = Scene, cal = Cal, records = R, counts = C, gp = Gp} = M) ->
             M#m{counts = maps:remove(T, C)}
     end.
 
-regroup(X, #m{cal = Cal} = M) ->
+%% Every member of a group has kept its record at regroup point X: the
+%% plan reads them also with sparse records.
+members_kept(X, #m{gp = #gvtp{groups = Groups}, planned = Planned} = M) ->
+    case [I || I <- rw_regroup:members(Groups), not is_map_key({X, I}, Planned)] of
+        [] -> M;
+        Unkept -> fail(M, {group_member_record_not_kept, X, Unkept})
+    end.
+
+keep(false, _Rows, M) -> M;
+keep(true, Rows, #m{planned = P} = M) -> M#m{planned = lists:foldl(fun({Key, _, _}, Acc) -> Acc#{Key => true} end, P, Rows)}.
+
+regroup(X, #m{cal = Cal} = M0) ->
     End = rw_sync:end_t(Cal),
     case rw_sync:period(Cal) of
-        0 -> M;
-        P when X rem P =/= 0; X + P >= End -> M;
+        0 -> M0;
+        P when X rem P =/= 0; X + P >= End -> M0;
         P ->
+            M = members_kept(X, M0),
             #m{met = Met0, gp = #gvtp{groups = Groups} = Gp, records = R, scene = #scene{spheres = Spheres}} = M,
             Met = maps:from_list([{Pair, true} || {Pair, T} <- maps:to_list(Met0), T >= X - P]),
             %% (as rw_gvt: only the bodies the plan needs)

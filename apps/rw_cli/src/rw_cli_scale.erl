@@ -73,7 +73,7 @@ run(N, Until, Round, Rounds) ->
     {ok, Scene} = rw_scene:from_map(scene(N), #{overrides => #{duration_ms => Until}}),
     erlang:garbage_collect(),
     Base = erlang:memory(total),
-    {ok, Sim} = rw_timewarp:start(Scene, #{}),
+    {ok, Sim} = rw_timewarp:start(Scene, #{read_frames => false}),
     T0 = erlang:monotonic_time(millisecond),
     Samples = sample(Sim, T0, []),
     Wall = erlang:monotonic_time(millisecond) - T0,
