@@ -114,6 +114,13 @@ kill_at(Port, Pid, F, Target, NeedCheckpoint, T0) ->
             end
     end.
 
+%% Once the run writing F has written a frame (its .part is not empty).
+wait_for_a_frame(F, Ms) when Ms > 0 ->
+    case filelib:file_size(F ++ ".part") > 0 of
+        true -> ok;
+        false -> timer:sleep(10), wait_for_a_frame(F, Ms - 10)
+    end.
+
 %% The byte offset of the checkpoint beside F (where a resumed run starts
 %% writing), or 0.
 checkpoint_offset(F) ->
@@ -154,7 +161,9 @@ sigterm(Config) ->
     F = filename:join(Dir, "f.jsonl"),
     Args = ["run" | timewarp_args()] ++ ["--frames", F],
     {Port, Pid} = start(Args, Dir),
-    timer:sleep(1000),
+    %% (a signal before the first frame names none: that case is sighup's)
+    ok = wait_for_a_frame(F, 30000),
+    timer:sleep(200),
     os:cmd("kill -TERM " ++ Pid),
     {Code, _} = wait(Port),
     Err = stderr(Dir),
