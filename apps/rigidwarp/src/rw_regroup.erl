@@ -28,7 +28,7 @@
 %% decide/4 is what the GVT process does at a regroup point: the groups
 %% from the committed states, and whom to tell what; it carries that out.
 -module(rw_regroup).
--export([new/3, new/4, by_site/2, quiet/2, wanted/2, members/1, decide/4, plan/4, plan/5, moves/3]).
+-export([new/3, new/4, by_site/2, quiet/2, wanted/2, reads_only_some/2, members/1, decide/4, plan/4, plan/5, moves/3]).
 -export_type([body/0, leaders/0, move/0, pairs/0, groups/0]).
 
 %% A body's committed state at the regroup point: idx, radius, position,
@@ -95,6 +95,12 @@ quiet(Met, #groups{mode = Mode, members = Members}) ->
 wanted(_Met, #groups{mode = eager}) -> all;
 wanted(_Met, #groups{landing = true, members = Members}) when map_size(Members) > 0 -> all;
 wanted(Met, #groups{members = Members}) -> lists:sort(maps:keys(seen(Met, Members))).
+
+%% Does wanted/2 never ask for every body, with groups planned in Mode and
+%% Landing as in new/4? Then a body alone that met nobody lately need not
+%% keep its record at a regroup point (rw_sim's sparse records).
+-spec reads_only_some(persistent | eager, boolean()) -> boolean().
+reads_only_some(Mode, Landing) -> Mode =:= persistent andalso not Landing.
 
 %% The bodies in groups of two or more, in idx order.
 -spec members(groups()) -> [non_neg_integer()].

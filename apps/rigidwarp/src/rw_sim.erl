@@ -48,11 +48,10 @@ new(#scene{spheres = Spheres, duration = End, frame = Frame, stride = Stride, st
 
 %% Records only where the engine reads them: when nobody reads the frames,
 %% on one node, and when the regroup plan reads the records of group members
-%% and of bodies that met only (not under gravity, where a body may land on
-%% a group, nor when tests plan groups of everything).
+%% and of bodies that met only (as rw_gvt plans: landing under gravity).
 sparse_records(#scene{model = #model{gravity = Gravity}}, Opts) ->
-    not maps:get(read_frames, Opts, true) andalso Gravity =:= undefined
-        andalso maps:get(grouping, Opts, persistent) =:= persistent.
+    not maps:get(read_frames, Opts, true)
+        andalso rw_regroup:reads_only_some(maps:get(grouping, Opts, persistent), Gravity =/= undefined).
 
 %% Every body's LVT, at its start time until it publishes another.
 lvts(Spheres, Start) ->
