@@ -246,9 +246,11 @@ pass(Next, #s{sim = #sim{end_t = End}} = S) ->
 %% A sync point T that GVT has passed: put it in the ring if it is a
 %% frame time (its records stay until it leaves the ring), else forget its
 %% records. On several nodes, only the frames whose records came here
-%% enter the ring; of the others, the run hears the time.
+%% enter the ring; of the others, the run hears the time, as of the frames
+%% before T that are no sync points (nobody reads them).
 finish(T, #s{sim = #sim{records = Records, ring = Ring, sync = Cal} = Sim} = S) ->
     ok = rw_commits:forget(Sim, T),
+    ok = lists:foreach(fun(F) -> notify(S#s.run, {rw_frame_time, self(), ms(F, S)}) end, rw_sync:frames_before(T, Cal)),
     Here = case S#s.multi of
                none -> true;
                #m{have = Have} -> maps:is_key(T, Have)
@@ -277,14 +279,15 @@ finish(T, #s{sim = #sim{records = Records, ring = Ring, sync = Cal} = Sim} = S) 
 %% Every checkpoint_ms of wall time, a frame is also a checkpoint: the
 %% whole state of every body, from which the run restarts after a fault.
 %% With sparse records the bodies keep every record only at the frame
-%% announced as the next checkpoint's, the first one that no body can have
-%% committed yet (past LVT_ub), so a checkpoint comes about a stride later.
+%% announced as the next checkpoint's, the first one at a sync point that
+%% no body can have committed yet (past LVT_ub), so a checkpoint comes
+%% about a stride later.
 checkpoint(T, Ms, #s{sim = #sim{sparse_records = true, records = Records}, checkpoint_at = T} = S) ->
     ok = notify(S#s.run, {rw_checkpoint, self(), {checkpoint, T, Ms, rw_commits:states_at(T, Records)}}),
     S#s{checkpoint_due = erlang:monotonic_time(millisecond) + S#s.checkpoint_ms, checkpoint_at = none};
 checkpoint(_T, _Ms, #s{sim = #sim{sparse_records = true, end_t = End, sync = Cal, scene = #scene{stride = Stride}} = Sim,
                        checkpoint_at = none, checkpoint_due = Due, gvt = G} = S) ->
-    At = rw_sync:frame_after(G + Stride, Cal),
+    At = rw_sync:sync_frame_after(G + Stride, Cal),
     case At < End andalso erlang:monotonic_time(millisecond) >= Due of
         true ->
             ok = rw_commits:checkpoint_at(Sim, At),

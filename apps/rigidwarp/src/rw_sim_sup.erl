@@ -93,7 +93,9 @@ nodes(Sup, Nodes, #scene{model = M, substep = Dt, spheres = Spheres, initial = I
                  {I, Node, Pid, Buckets}
              end || {I, Node} <- lists:zip(lists:seq(0, K - 1), Nodes)],
     AllBuckets = list_to_tuple(lists:append([B || {_, _, _, B} <- Sites])),
-    Sim0 = (rw_sim:new(Scene, Tables, AllBuckets, Stats, Opts))#sim{placement = Place, sparse_records = false},
+    %% (every record is kept, and every frame time is a sync point: each site
+    %% sends the records of the sync points the run needs, rw_gvt_site)
+    Sim0 = (rw_sim:new(Scene, Tables, AllBuckets, Stats, Opts#{read_frames => true}))#sim{placement = Place},
     {Sweeper, Gvt} = start_gvt(Sup, Sim0, Tables, Opts),
     Sim = Sim0#sim{gvt = Gvt},
     {ok, Watchdog} = child(Sup, rw_sim_parts:worker(watchdog, rw_watchdog, [Sim, maps:get(run, Opts, undefined),

@@ -43,3 +43,40 @@ next_at_test() ->
     [?assertEqual(hd([S || S <- lists:seq(T, 150), rw_sync:is_sync(S, C)]), rw_sync:next_at(T, C))
      || C <- [cal(), rw_sync:new(10, 16, 100, 0), rw_sync:new(7, 64, 150, 0)], T <- lists:seq(0, rw_sync:end_t(C))],
     ?assertEqual(none, rw_sync:next_at(151, cal())).
+
+%% Only every third frame time a sync point (nobody reads the frames):
+%% the other frames are still frames, passed with the next sync point.
+sparse_test() ->
+    C = rw_sync:sparse(rw_sync:new(10, 64, 150, 30), 3),
+    ?assertEqual([0, 30, 60, 64, 90, 120, 128, 150], [T || T <- lists:seq(0, 150), rw_sync:is_sync(T, C)]),
+    ?assertEqual([T || T <- lists:seq(0, 150), rw_sync:is_frame(T, cal())],
+                 [T || T <- lists:seq(0, 150), rw_sync:is_frame(T, C)]),
+    ?assertEqual([10, 20], rw_sync:frames_before(30, C)),
+    ?assertEqual([], rw_sync:frames_before(64, C)),
+    ?assertEqual([70, 80], rw_sync:frames_before(90, C)),
+    ?assertEqual([130, 140], rw_sync:frames_before(150, C)),
+    ?assertEqual([], rw_sync:frames_before(0, C)),
+    ?assertEqual([], rw_sync:frames_before(30, cal())),
+    ?assertEqual(90, rw_sync:sync_frame_after(64, C)),
+    ?assertEqual(90, rw_sync:sync_frame_after(60, C)),
+    ?assertEqual(20, rw_sync:sync_frame_after(10, cal())).
+
+%% For calendars with and without sparse frames, from 0 and from a later
+%% start that is no multiple of the sync frames (a run resumed from any
+%% frame): the start is a sync point; next_at/2 and last_before/2 find the
+%% sync points that is_sync/2 names; and every frame time after the start
+%% is a sync point or is passed with one (frames_before/2), once.
+sparse_calendars_test() ->
+    [begin
+         Syncs = [T || T <- lists:seq(Start, End), rw_sync:is_sync(T, C)],
+         ?assertEqual(Start, hd(Syncs)),
+         [?assertEqual(hd([S || S <- Syncs, S >= T]), rw_sync:next_at(T, C)) || T <- lists:seq(Start, End)],
+         [?assertEqual(lists:last([S || S <- Syncs, S =< T]), rw_sync:last_before(T, C))
+          || T <- lists:seq(Start, End - 1)],
+         Frames = [T || T <- lists:seq(Start + 1, End), rw_sync:is_frame(T, C)],
+         Passed = lists:append([rw_sync:frames_before(T, C) ++ [T || rw_sync:is_frame(T, C)] || T <- tl(Syncs)]),
+         ?assertEqual(Frames, Passed),
+         [?assertEqual(hd([S || S <- Syncs, S > T, S rem 10 =:= 0, S < End]), rw_sync:sync_frame_after(T, C))
+          || T <- lists:seq(Start, End - 100)]
+     end || Start <- [0, 20, 70], Every <- [1, 2, 3, 7], Period <- [0, 30],
+            C <- [rw_sync:sparse(rw_sync:new(10, 64, 300, Period * Every, Start), Every)], End <- [300]].
