@@ -61,7 +61,7 @@ sparse_records(#scene{model = #model{gravity = Gravity}}, Opts) ->
 %% run hears of: some two sync points a stride instead of one a frame,
 %% and regroup points as far apart. A body flying a whole stride alone
 %% commits at each (Parallel 500 ran 1.4 times as fast with frame times
-%% every 120 ms instead of 10); a gas regroups no differently.
+%% every 120 ms instead of 10, Bouncing 500 as fast).
 sync_every(false, _Scene) -> 1;
 sync_every(true, #scene{frame = F, stride = S}) -> max(1, S div (2 * F)).
 
