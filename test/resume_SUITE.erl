@@ -119,7 +119,8 @@ wait_for_a_frame(F, Ms) when Ms > 0 ->
     case filelib:file_size(F ++ ".part") > 0 of
         true -> ok;
         false -> timer:sleep(10), wait_for_a_frame(F, Ms - 10)
-    end.
+    end;
+wait_for_a_frame(F, _Ms) -> ct:fail({no_frame_written, F ++ ".part"}).
 
 %% The byte offset of the checkpoint beside F (where a resumed run starts
 %% writing), or 0.

@@ -29,7 +29,7 @@
 -define(NOT_HERE, 16#FFFFFFFFFFFFFFFF).
 
 -spec new(#scene{}, tables(), tuple(), rw_stats:counters(), options()) -> #sim{}.
-new(#scene{spheres = Spheres, duration = End, frame = Frame, stride = Stride, start = Start} = Scene,
+new(#scene{spheres = Spheres, duration = End, frame = Frame, stride = Stride, start = Start, substep = Dt} = Scene,
     #{records := Records, counts := Counts, ring := Ring, owners := Owners, procs := Procs, met := Met},
     Buckets, Stats, Opts) ->
     Sparse = sparse_records(Scene, Opts),
@@ -37,7 +37,7 @@ new(#scene{spheres = Spheres, duration = End, frame = Frame, stride = Stride, st
     Period = case {maps:get(groups, Opts, true), maps:find(regroup_every, Opts)} of
                  {false, _} -> 0;
                  {true, {ok, Every}} -> Every * Stride;
-                 {true, error} -> period(Scene#scene{frame = Frame * SyncEvery})
+                 {true, error} -> period(Dt, Frame * SyncEvery)
              end,
     Cal = rw_sync:sparse(rw_sync:new(Frame, Stride, End, Period, Start), SyncEvery),
     #sim{scene = Scene, n = length(Spheres), end_t = End, sync = Cal,
@@ -107,11 +107,11 @@ gvt_now() ->
     ok = atomics:put(Ref, 1, -1),
     Ref.
 
-%% Bodies may regroup at frame times at least 8 substeps apart (every
-%% frame in the paper's scenes: 10 ms), planned when GVT reaches the
-%% regroup point before (rw_gvt): a new persistent contact is stepped as
-%% one group one or two periods after its bodies have met often enough to
-%% say so. Frame times are sync points anyway; regroup points of their own
-%% would add a commit per body at each, a cost even to scenes that never
-%% regroup.
-period(#scene{substep = Dt, frame = F}) -> F * max(1, (8 * Dt + F - 1) div F).
+%% Bodies may regroup at the frame times that are sync points (every F
+%% ticks), at least 8 substeps apart (every frame in the paper's scenes:
+%% 10 ms), planned when GVT reaches the regroup point before (rw_gvt): a
+%% new persistent contact is stepped as one group one or two periods after
+%% its bodies have met often enough to say so. Those frame times are sync
+%% points anyway; regroup points of their own would add a commit per body
+%% at each, a cost even to scenes that never regroup.
+period(Dt, F) -> F * max(1, (8 * Dt + F - 1) div F).
