@@ -40,15 +40,34 @@ step(M, St, Effects) ->
     rw_integrate:advance(M, St, V, W, U).
 
 %% The effects of a sphere's contacts with the fixtures at one substep, in
-%% canonical order (fixtures ascending by idx, features ascending).
+%% canonical order (fixtures ascending by idx, features ascending). Each
+%% contact acts on the velocities left by those before it: summed from the
+%% same velocities, two contacts with almost parallel normals (a floor and
+%% a plane just above it, both hit within one swept substep) would each
+%% reverse the approach, and at restitution 1 send the sphere off at three
+%% times its speed, bounce after bounce. In turn, the second contact finds
+%% the sphere already leaving and does nothing.
 -spec fixture_effects(#model{}, #sphere{}, #st{}, [#fixture{}]) -> [keyed_effect()].
 fixture_effects(#model{ccd = Ccd} = M, #sphere{radius = R} = S, #st{p = P} = St, Fixtures) ->
     Disp = case Ccd of
                true -> rw_integrate:free_displacement(M, St);
                false -> undefined
            end,
-    [{{FIdx, Feature}, rw_response:fixture(M, S, St, C)}
-     || #fixture{idx = FIdx} = Fixture <- Fixtures, {Feature, C} <- fixture_contacts(P, Disp, R, Fixture)].
+    case [{{FIdx, Feature}, C} || #fixture{idx = FIdx} = Fixture <- Fixtures,
+                                  {Feature, C} <- fixture_contacts(P, Disp, R, Fixture)] of
+        [] -> [];
+        [{Key, C}] -> [{Key, rw_response:fixture(M, S, St, C)}];
+        Contacts -> in_turn(M, S, St, Contacts)
+    end.
+
+in_turn(_M, _S, _St, []) -> [];
+in_turn(M, S, St, [{Key, C} | Rest]) ->
+    {Dv, Dw, _Du} = Effect = rw_response:fixture(M, S, St, C),
+    Next = case Dw of
+               undefined -> St#st{v = vadd(St#st.v, Dv)};
+               _ -> St#st{v = vadd(St#st.v, Dv), w = vadd(St#st.w, Dw)}
+           end,
+    [{Key, Effect} | in_turn(M, S, Next, Rest)].
 
 %% Whether a sphere of radius R at P touches one of Fixtures, as
 %% fixture_effects/4 finds contacts without CCD (without building them

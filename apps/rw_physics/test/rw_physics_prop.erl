@@ -14,7 +14,7 @@
          prop_cylinder_depth_along_normal/0, prop_swept_toi/0,
          prop_degenerate_input/0, prop_quat_integrate/0, prop_free_flight/0,
          prop_respond_is_ordered_fold/0, prop_container_is_six_walls/0,
-         prop_fixture_box_skips_only_misses/0, prop_fixture_then_pair_energy/0,
+         prop_fixture_box_skips_only_misses/0, prop_fixture_then_pair_energy/0, prop_fixtures_together_energy/0,
          prop_island_equals_all_pairs/0, prop_island_equals_all_pairs/1, prop_sweep_spheres_equals_all_pairs/0,
          prop_sweep_spans_equals_all_pairs/0, prop_grid_equals_shared_cells/0]).
 %% generators, for use from a shell: proper_gen:pick(rw_physics_prop:pair_case())
@@ -289,6 +289,40 @@ prop_fixture_then_pair_energy() ->
                                  [FA, FB, Before, After, (After - Before) / max(Before, 1.0e-300), M]),
                           FA =/= [] andalso energy_ok(M, Before, After))
             end)).
+
+%% A sphere touching two or three fixtures in one substep (planes it
+%% overlaps, their normals at random or within a few degrees of each
+%% other, as a floor and a slightly tilted plane just above it), with and
+%% without CCD: all its fixture contacts together never add kinetic energy.
+%% Summed from the same velocity, two almost parallel contacts at
+%% restitution 1 would triple the sphere's speed.
+prop_fixtures_together_energy() ->
+    ?FORALL({M0, Ccd, R, Mass, P, {First, Others}, Depths},
+            {model(), boolean(), float(0.05, 2.0), mass(), vec(),
+             {direction(), ?LET(K, range(1, 2), vector(K, near_or_any()))}, vector(3, float(0.01, 0.5))},
+            ?FORALL(St0, state(M0),
+                 ?SAFE(begin
+                     M = M0#model{ccd = Ccd},
+                     S = rw_shape:sphere(0, <<"s">>, R, Mass),
+                     Normals = [First | [case O of
+                                             {near, Tilt} -> rw_vec:norm(rw_vec:add(First, Tilt));
+                                             {any, Dir} -> Dir
+                                         end || O <- Others]],
+                     Fixtures = [rw_shape:fixture(I, <<"plane">>, {plane, N, rw_vec:dot(N, P) - R * (1.0 - D)})
+                                 || {I, N, D} <- lists:zip3(lists:seq(1, length(Normals)), Normals,
+                                                            lists:sublist(Depths, length(Normals)))],
+                     St = St0#st{p = P},
+                     Effects = rw_dynamics:fixture_effects(M, S, St, Fixtures),
+                     {V, W, _} = rw_dynamics:respond(St, [E || {_, E} <- Effects]),
+                     Before = ke(S, St#st.v, St#st.w),
+                     After = ke(S, V, W),
+                     ?WHENFAIL(report("normals ~p; effects ~p; KE ~p -> ~p, model ~p",
+                                      [Normals, Effects, Before, After, M]),
+                               length(Effects) >= 2 andalso energy_ok(M, Before, After))
+                 end))).
+
+%% Another plane's normal: within a few degrees of the first, or any.
+near_or_any() -> oneof([{near, speed_vec(0.05)}, {any, direction()}]).
 
 %% The same for a sphere against a static body.
 prop_fixture_energy() ->

@@ -7,7 +7,8 @@
          friction_coulomb/1, pair_symmetric_and_repeatable/1, hash_covers_aabb/1, hash_region_keeps_box/1, normals_unit/1,
          depth_along_normal/1, cylinder_depth_along_normal/1, swept_toi/1, degenerate_input/1,
          quat_integrate/1, free_flight/1, respond_is_ordered_fold/1, container_is_six_walls/1,
-         fixture_box_skips_only_misses/1, fixture_then_pair_energy/1, island_equals_all_pairs/1,
+         fixture_box_skips_only_misses/1, fixture_then_pair_energy/1, fixtures_together_energy/1,
+         island_equals_all_pairs/1,
          sweep_spheres_equals_all_pairs/1, sweep_spans_equals_all_pairs/1, grid_equals_shared_cells/1,
          island_mutants_are_caught/1]).
 
@@ -25,7 +26,7 @@ all() -> [pair_momentum, pair_angular_momentum, pair_energy, fixture_energy, res
           pair_symmetric_and_repeatable, hash_covers_aabb, hash_region_keeps_box, normals_unit, depth_along_normal,
           cylinder_depth_along_normal, swept_toi, degenerate_input, quat_integrate, free_flight,
           respond_is_ordered_fold, container_is_six_walls, fixture_box_skips_only_misses,
-          fixture_then_pair_energy, island_equals_all_pairs, sweep_spheres_equals_all_pairs,
+          fixture_then_pair_energy, fixtures_together_energy, island_equals_all_pairs, sweep_spheres_equals_all_pairs,
           sweep_spans_equals_all_pairs, grid_equals_shared_cells, island_mutants_are_caught].
 
 end_per_testcase(_Case, _Config) ->
@@ -47,6 +48,7 @@ hash_region_keeps_box(_) -> check(hash_region_keeps_box).
 container_is_six_walls(_) -> check(container_is_six_walls).
 fixture_box_skips_only_misses(_) -> check(fixture_box_skips_only_misses).
 fixture_then_pair_energy(_) -> check(fixture_then_pair_energy).
+fixtures_together_energy(_) -> check(fixtures_together_energy).
 island_equals_all_pairs(_) -> check(island_equals_all_pairs).
 sweep_spheres_equals_all_pairs(_) -> check(sweep_spheres_equals_all_pairs).
 sweep_spans_equals_all_pairs(_) -> check(sweep_spans_equals_all_pairs).
