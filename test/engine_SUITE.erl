@@ -22,11 +22,6 @@
 
 suite() -> [{timetrap, {minutes, 15}}].
 
-%% A random scene's reference run takes well under a second and a few MB;
-%% these bounds are two orders of magnitude above.
--define(REFERENCE_MAX_MS, 30000).
--define(REFERENCE_MAX_WORDS, 100000000).
-
 all() -> [{group, equality}, {group, liveness}, {group, lifecycle}].
 
 groups() ->
@@ -258,15 +253,15 @@ check_tally(Tally, Runs, Least) ->
 %% PropEr prints the kinds of scene and whether they regrouped (contact
 %% groups changed); Tally counts what the run met.
 same_as_reference(Scene, Sched, Opts, What, Tally) ->
-    case bounded_reference(Scene) of
+    case rw_test_lib:bounded_reference(Scene) of
         {ok, Reference} ->
             same_as_reference(Scene, Reference, Sched, Opts, What, Tally);
         {error, Why} ->
             %% recorded and failed after the runs (check_runaways/1),
             %% rather than shrunk: each shrinking step would run as long
-            _ = tally(Tally, [Why]),
-            true = ets:insert(Tally, {{Why, erlang:unique_integer()}, What}),
-            collect(Why, true)
+            _ = tally(Tally, [runaway]),
+            true = ets:insert(Tally, {{runaway, Why, erlang:unique_integer()}, What}),
+            collect(runaway, true)
     end.
 
 same_as_reference(#scene{name = Name} = Scene, {Ref, #{pair_contacts := Pairs, fixture_contacts := Fixed}},
@@ -283,31 +278,12 @@ same_as_reference(#scene{name = Name} = Scene, {Ref, #{pair_contacts := Pairs, f
     collect({Kind, Regrouped},
             ?WHENFAIL(ct:pal("~s~nfirst diff ~p", [What, first_diff(Ref, Tw)]), rw_test_lib:bitwise_equal(Ref, Tw))).
 
-%% The reference's frames of a random scene, in a process of its own with
-%% bounded time and memory: a scene whose physics runs away (a sphere
-%% gaining speed at every bounce sweeps ever more cells) fails the test
-%% naming it, instead of filling the machine's memory.
-bounded_reference(Scene) ->
-    Tag = make_ref(),
-    {Pid, Mon} = spawn_opt(fun() -> exit({Tag, frames(reference, Scene, #{})}) end,
-                           [monitor, {max_heap_size, #{size => ?REFERENCE_MAX_WORDS, kill => true,
-                                                       error_logger => false}}]),
-    receive
-        {'DOWN', Mon, process, Pid, {Tag, Result}} -> {ok, Result};
-        {'DOWN', Mon, process, Pid, killed} -> {error, reference_too_big}
-    after ?REFERENCE_MAX_MS ->
-        exit(Pid, kill),
-        receive {'DOWN', Mon, process, Pid, _} -> ok end,
-        {error, reference_too_slow}
-    end.
-
-%% No random scene ran away (bounded_reference/1).
+%% No random scene ran away (rw_test_lib:bounded_reference/1).
 check_runaways(Tally) ->
-    case [What || {{Why, _}, What} <- ets:tab2list(Tally), Why =:= reference_too_slow orelse Why =:= reference_too_big] of
+    case [{Why, What} || {{runaway, Why, _}, What} <- ets:tab2list(Tally)] of
         [] -> ok;
         Scenes ->
-            [ct:pal("the reference ran past ~b ms or ~b words on~n~s", [?REFERENCE_MAX_MS, ?REFERENCE_MAX_WORDS, W])
-             || W <- Scenes],
+            [ct:pal("the reference ran away (~p) on~n~s", [Why, What]) || {Why, What} <- Scenes],
             ct:fail({runaway_scenes, length(Scenes)})
     end.
 

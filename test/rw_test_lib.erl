@@ -1,7 +1,8 @@
 %% Helpers shared by the common_test suites in test/ (and by the apps'
 %% EUnit tests: rebar3 compiles test/ for both).
 -module(rw_test_lib).
--export([root/0, scenario/1, test_scene/1, scenes_with_reference/1, reference_frames/1, escript/0, run_escript/1,
+-export([root/0, scenario/1, test_scene/1, scenes_with_reference/1, reference_frames/1, bounded_reference/1,
+         escript/0, run_escript/1,
          bitwise_equal/2, assert_bitwise/2, assert_bitwise/3, first_difference/2]).
 
 %% Bit for bit the same terms: =:= takes -0.0 for 0.0 on OTP 25; the
@@ -104,6 +105,36 @@ reference_frames(Scene) ->
     drain(Ref).
 
 drain(Ref) -> receive {Ref, F} -> [F | drain(Ref)] after 0 -> [] end.
+
+%% A random scene's reference run takes well under a second and a few MB;
+%% these bounds are two orders of magnitude above.
+-define(REFERENCE_MAX_MS, 30000).
+-define(REFERENCE_MAX_WORDS, 100000000).
+
+%% The reference's frames and summary of Scene, run in a process of its own
+%% with bounded time and heap: a scene whose physics runs away (a sphere
+%% gaining speed at every bounce sweeps ever more cells) gives an error
+%% naming the bound, instead of filling the machine's memory.
+-spec bounded_reference(tuple()) ->
+          {ok, {[tuple()], map()}} | {error, {reference_too_slow, pos_integer()} | {reference_too_big, pos_integer()}}.
+bounded_reference(Scene) ->
+    Tag = make_ref(),
+    Run = fun() ->
+                  Self = self(),
+                  Ref = make_ref(),
+                  {ok, Summary} = rw_reference:run(Scene, #{on_frame => fun(F) -> Self ! {Ref, F} end}),
+                  exit({Tag, {drain(Ref), Summary}})
+          end,
+    {Pid, Mon} = spawn_opt(Run, [monitor, {max_heap_size, #{size => ?REFERENCE_MAX_WORDS, kill => true,
+                                                            error_logger => false}}]),
+    receive
+        {'DOWN', Mon, process, Pid, {Tag, Result}} -> {ok, Result};
+        {'DOWN', Mon, process, Pid, killed} -> {error, {reference_too_big, ?REFERENCE_MAX_WORDS}}
+    after ?REFERENCE_MAX_MS ->
+        exit(Pid, kill),
+        receive {'DOWN', Mon, process, Pid, _} -> ok end,
+        {error, {reference_too_slow, ?REFERENCE_MAX_MS}}
+    end.
 
 -spec escript() -> file:filename().
 escript() -> filename:join([root(), "_build", "default", "bin", "rigidwarp"]).
