@@ -211,7 +211,7 @@ random_scenes_equal(_Config) ->
                                                            [SceneMap, Stride, Buckets, Sched, Groups]), Tally)
                    end),
     true = proper:quickcheck(Prop, [{numtests, 300}, {to_file, user}, long_result]),
-    check_runaways(Tally),
+    rw_test_lib:check_runaways(Tally),
     check_tally(Tally, 300),
     ok.
 
@@ -257,10 +257,8 @@ same_as_reference(Scene, Sched, Opts, What, Tally) ->
         {ok, Reference} ->
             same_as_reference(Scene, Reference, Sched, Opts, What, Tally);
         {error, Why} ->
-            %% recorded and failed after the runs (check_runaways/1),
-            %% rather than shrunk: each shrinking step would run as long
             _ = tally(Tally, [runaway]),
-            true = ets:insert(Tally, {{runaway, Why, erlang:unique_integer()}, What}),
+            true = rw_test_lib:runaway(Tally, Why, What),
             collect(runaway, true)
     end.
 
@@ -277,15 +275,6 @@ same_as_reference(#scene{name = Name} = Scene, {Ref, #{pair_contacts := Pairs, f
                      ++ [{touched, Touched} || Touched <- fixture_kinds_touched(Scene, Ref)]),
     collect({Kind, Regrouped},
             ?WHENFAIL(ct:pal("~s~nfirst diff ~p", [What, first_diff(Ref, Tw)]), rw_test_lib:bitwise_equal(Ref, Tw))).
-
-%% No random scene ran away (rw_test_lib:bounded_reference/1).
-check_runaways(Tally) ->
-    case [{Why, What} || {{runaway, Why, _}, What} <- ets:tab2list(Tally)] of
-        [] -> ok;
-        Scenes ->
-            [ct:pal("the reference ran away (~p) on~n~s", [Why, What]) || {Why, What} <- Scenes],
-            ct:fail({runaway_scenes, length(Scenes)})
-    end.
 
 %% The kinds of fixture some sphere touches (within 1 % of its radius) in
 %% some frame.
@@ -516,7 +505,7 @@ random_delays_terminate_and_equal(_Config) ->
                                                            [SceneMap, Stride, Seed, MaxMs, Groups]), Tally)
                    end),
     true = proper:quickcheck(Prop, [{numtests, 80}, {to_file, user}, long_result]),
-    check_runaways(Tally),
+    rw_test_lib:check_runaways(Tally),
     check_tally(Tally, 80, [{pair_contacts, 25}, {fixture_contacts, 30}, {regrouped, 20}]),
     ok.
 

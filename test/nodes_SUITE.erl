@@ -55,7 +55,7 @@ frames(Scene, Opts) ->
 %% restart allowed (no fault is injected: any restart is a bug), has the
 %% reference's frames bit for bit; true for a packing that cannot be placed,
 %% and for a scene whose reference runs away, which goes into Runaways
-%% instead of being shrunk (each shrinking step would run as long).
+%% (rw_test_lib:runaway/3).
 equal_to_reference(SceneMap, Stride, Opts, Runaways) ->
     case rw_scene:from_map(SceneMap#{<<"stride_ms">> => Stride * maps:get(<<"substep_ms">>, SceneMap)}, #{}) of
         {error, _} ->
@@ -69,8 +69,7 @@ equal_to_reference(SceneMap, Stride, Opts, Runaways) ->
                                       rw_test_lib:first_difference(Reference, Frames)]),
                               element(1, Result) =:= ok andalso rw_test_lib:bitwise_equal(Reference, Frames));
                 {error, Why} ->
-                    true = ets:insert(Runaways, {erlang:unique_integer(), Why, SceneMap, Stride}),
-                    true
+                    rw_test_lib:runaway(Runaways, Why, io_lib:format("scene ~p~nstride ~p", [SceneMap, Stride]))
             end
     end.
 
@@ -78,13 +77,7 @@ equal_to_reference(SceneMap, Stride, Opts, Runaways) ->
 quickcheck_equal(Prop, NumTests) ->
     Runaways = ets:new(runaways, [public]),
     true = proper:quickcheck(Prop(Runaways), [{numtests, NumTests}, {to_file, user}, long_result]),
-    case ets:tab2list(Runaways) of
-        [] -> ok;
-        Found ->
-            [ct:pal("the reference ran away (~p) on scene ~p~nstride ~p", [Why, SceneMap, Stride])
-             || {_, Why, SceneMap, Stride} <- Found],
-            ct:fail({runaway_scenes, length(Found)})
-    end.
+    rw_test_lib:check_runaways(Runaways).
 
 %%% Cases
 

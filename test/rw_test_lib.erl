@@ -2,7 +2,7 @@
 %% EUnit tests: rebar3 compiles test/ for both).
 -module(rw_test_lib).
 -export([root/0, scenario/1, test_scene/1, scenes_with_reference/1, reference_frames/1, bounded_reference/1,
-         escript/0, run_escript/1,
+         runaway/3, check_runaways/1, escript/0, run_escript/1,
          bitwise_equal/2, assert_bitwise/2, assert_bitwise/3, first_difference/2]).
 
 %% Bit for bit the same terms: =:= takes -0.0 for 0.0 on OTP 25; the
@@ -99,10 +99,14 @@ scenes_with_reference(Scenes) ->
 %% The frames of the sequential reference engine, in order.
 -spec reference_frames(tuple()) -> [tuple()].
 reference_frames(Scene) ->
+    {Frames, _Summary} = reference_run(Scene),
+    Frames.
+
+reference_run(Scene) ->
     Ref = make_ref(),
     Self = self(),
-    {ok, _} = rw_reference:run(Scene, #{on_frame => fun(F) -> Self ! {Ref, F} end}),
-    drain(Ref).
+    {ok, Summary} = rw_reference:run(Scene, #{on_frame => fun(F) -> Self ! {Ref, F} end}),
+    {drain(Ref), Summary}.
 
 drain(Ref) -> receive {Ref, F} -> [F | drain(Ref)] after 0 -> [] end.
 
@@ -119,13 +123,7 @@ drain(Ref) -> receive {Ref, F} -> [F | drain(Ref)] after 0 -> [] end.
           {ok, {[tuple()], map()}} | {error, {reference_too_slow, pos_integer()} | {reference_too_big, pos_integer()}}.
 bounded_reference(Scene) ->
     Tag = make_ref(),
-    Run = fun() ->
-                  Self = self(),
-                  Ref = make_ref(),
-                  {ok, Summary} = rw_reference:run(Scene, #{on_frame => fun(F) -> Self ! {Ref, F} end}),
-                  exit({Tag, {drain(Ref), Summary}})
-          end,
-    {Pid, Mon} = spawn_opt(Run, [monitor, {max_heap_size, #{size => ?REFERENCE_MAX_WORDS, kill => true,
+    {Pid, Mon} = spawn_opt(fun() -> exit({Tag, reference_run(Scene)}) end, [monitor, {max_heap_size, #{size => ?REFERENCE_MAX_WORDS, kill => true,
                                                             error_logger => false}}]),
     receive
         {'DOWN', Mon, process, Pid, {Tag, Result}} -> {ok, Result};
@@ -134,6 +132,22 @@ bounded_reference(Scene) ->
         exit(Pid, kill),
         receive {'DOWN', Mon, process, Pid, _} -> ok end,
         {error, {reference_too_slow, ?REFERENCE_MAX_MS}}
+    end.
+
+%% A property over random scenes records in Table (a public ETS table) a
+%% scene What whose reference ran away (Why, from bounded_reference/1),
+%% instead of failing there and shrinking it: each shrinking step would run
+%% as long. check_runaways/1 fails after the property, naming them.
+-spec runaway(ets:tid(), term(), iodata()) -> true.
+runaway(Table, Why, What) -> ets:insert(Table, {{runaway, Why, erlang:unique_integer()}, What}).
+
+-spec check_runaways(ets:tid()) -> ok.
+check_runaways(Table) ->
+    case [{Why, What} || {{runaway, Why, _}, What} <- ets:tab2list(Table)] of
+        [] -> ok;
+        Scenes ->
+            [ct:pal("the reference ran away (~p) on~n~s", [Why, What]) || {Why, What} <- Scenes],
+            ct:fail({runaway_scenes, length(Scenes)})
     end.
 
 -spec escript() -> file:filename().

@@ -62,12 +62,8 @@ fixture_effects(#model{ccd = Ccd} = M, #sphere{radius = R} = S, #st{p = P} = St,
 
 in_turn(_M, _S, _St, []) -> [];
 in_turn(M, S, St, [{Key, C} | Rest]) ->
-    {Dv, Dw, _Du} = Effect = rw_response:fixture(M, S, St, C),
-    Next = case Dw of
-               undefined -> St#st{v = vadd(St#st.v, Dv)};
-               _ -> St#st{v = vadd(St#st.v, Dv), w = vadd(St#st.w, Dw)}
-           end,
-    [{Key, Effect} | in_turn(M, S, Next, Rest)].
+    Keyed = {Key, rw_response:fixture(M, S, St, C)},
+    [Keyed | in_turn(M, S, after_fixtures(St, [Keyed]), Rest)].
 
 %% Whether a sphere of radius R at P touches one of Fixtures, as
 %% fixture_effects/4 finds contacts without CCD (without building them
