@@ -14,11 +14,12 @@
 -export([substeps_1_to_250_ms/1, substeps_below_1_ms/1, strides_512_and_1024/1, sphere_at_100_radii_per_substep/1,
          far_coordinates_1e9/1, mass_ratio_1e6/1, restitution_0/1, restitution_1_energy/1, restitution_1_energy_ccd/1,
          resting_sphere_60_s/1, cradle_of_two_cylinders/1, incline_holds_slides_and_rolls/1,
-         wall_and_sphere_at_once/1, floor_and_tilted_plane_at_once/1]).
+         wall_and_sphere_at_once/1, floor_and_tilted_plane_at_once/1, sphere_across_cells_diagonally/1]).
 
 suite() -> [{timetrap, {minutes, 5}}].
 
-all() -> [substeps_below_1_ms, substeps_1_to_250_ms, strides_512_and_1024, sphere_at_100_radii_per_substep, far_coordinates_1e9,
+all() -> [substeps_below_1_ms, substeps_1_to_250_ms, strides_512_and_1024, sphere_at_100_radii_per_substep,
+          sphere_across_cells_diagonally, far_coordinates_1e9,
           mass_ratio_1e6, restitution_0, restitution_1_energy, restitution_1_energy_ccd, wall_and_sphere_at_once, floor_and_tilted_plane_at_once,
           resting_sphere_60_s,
           cradle_of_two_cylinders, incline_holds_slides_and_rolls].
@@ -322,6 +323,31 @@ floor_and_tilted_plane_at_once(_Config) ->
     ok.
 
 speed(Id, Frame) -> {_, _, V, _, _} = body(Id, Frame), rw_vec:len(V).
+
+%% A sphere crossing a hundred cells diagonally at every substep (CCD, 17
+%% km/s) hits a sphere at rest head on and hands it its velocity, after
+%% passing 0.02 m from another without touching it; Time Warp equals the
+%% reference. Both hash a swept sphere to the cells it can touch on its
+%% way (rw_hash:swept_cells/4), a hundred-odd per substep here: the cells
+%% of its swept box, the cube of its move, were a million per substep in
+%% the reference's grid (cells of two radii), which ran out of time.
+sphere_across_cells_diagonally(_Config) ->
+    V = 10000.0,
+    Scene = scene(#{<<"duration_ms">> => 100, <<"frame_ms">> => 10,
+                    <<"model">> => #{<<"restitution">> => 1.0, <<"ccd">> => true},
+                    <<"bodies">> => [sphere(<<"a">>, 0.05, 1, [0, 0, 0], [V, V, -V]),
+                                     sphere(<<"hit">>, 0.05, 1, [500.5, 500.5, -500.5], [0, 0, 0]),
+                                     sphere(<<"missed">>, 0.05, 1, [250.15, 250.0, -250.0], [0, 0, 0])]}),
+    {ok, {Frames, _}} = rw_test_lib:bounded_reference(Scene),
+    Last = lists:last(Frames),
+    {_, _, VA, _, _} = body(<<"a">>, Last),
+    {_, _, VHit, _, _} = body(<<"hit">>, Last),
+    ct:log("after the hit: a ~p, hit ~p", [VA, VHit]),
+    ?assert(rw_vec:len(VA) < 1.0e-6),
+    ?assert(rw_vec:len(rw_vec:sub(VHit, {V, V, -V})) < 1.0e-6),
+    {_, PMissed, VMissed, _, _} = body(<<"missed">>, Last),
+    ?assertBitwise({{250.15, 250.0, -250.0}, {0.0, 0.0, 0.0}}, {PMissed, VMissed}),
+    ?assertBitwise(Frames, timewarp(Scene, #{})).
 
 %% A sphere placed exactly touching a plane (touching is not yet a contact)
 %% for 60 s, a frame every substep: it falls for its first substep (g dt^2 =

@@ -131,14 +131,15 @@ pair_contact(#sphere{radius = RA}, #st{p = PA}, #sphere{radius = RB}, #st{p = PB
 pair_contact(#sphere{radius = RA}, #st{p = PA}, #sphere{radius = RB}, #st{p = PB}, A, B, Disp) ->
     rw_narrow:swept_sphere_sphere(PA, element(A, Disp), RA, PB, element(B, Disp), RB).
 
-%% Pairs (lower position first) whose boxes share a cell of the grid.
+%% Pairs (lower position first) whose spheres (swept, with CCD) share a
+%% cell of the grid.
 candidate_pairs(Bodies, States, Disp, Cell) ->
     BoxOf = fun(K) ->
                     #sphere{radius = R} = element(K, Bodies),
                     #st{p = P} = element(K, States),
                     case Disp of
                         undefined -> rw_shape:sphere_aabb(P, R);
-                        _ -> rw_shape:swept_aabb(P, element(K, Disp), R)
+                        _ -> {swept, P, element(K, Disp), R}
                     end
             end,
     lists:sort(rw_broadphase:grid(tuple_size(Bodies), BoxOf, Cell)).

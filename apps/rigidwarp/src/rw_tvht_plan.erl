@@ -229,17 +229,21 @@ extend(I, N, Packed, X0, Y0, Z0, X1, Y1, Z1) ->
 %% state (a bucket tests a pair's distance at every substep anyway, so a
 %% wider span adds candidates, never contacts). Otherwise (a fast body)
 %% cells are enumerated only when the box changes, and a box is hashed
-%% again only when it leaves the region that keeps its cells.
+%% again only when it leaves the region that keeps its cells. A state
+%% swept over many cells takes the cells its sphere can touch on the way
+%% (rw_hash:swept_cells/4), not its whole box: a sphere crossing cells
+%% diagonally would cover the cube of its move.
 cell_spans(T0, {Packed, Extents, R}, C, Dt) ->
     Box = rw_hash:box(aabb(Packed, 1, R), C),
     All = all_box(Extents, R, C),
     N = rw_states:count(Packed),
-    case All =:= Box orelse rw_hash:box_size(All) =< 2 * rw_hash:box_size(Box) of
+    case (All =:= Box orelse rw_hash:box_size(All) =< 2 * rw_hash:box_size(Box)) andalso not wide(All, Packed, 1) of
         true -> add_run(All, T0, T0 + (N - 1) * Dt, #{});
-        false -> spans(2, N, Packed, T0 + Dt, Box, rw_hash:region(Box, C), T0, T0, {C, R, Dt}, #{})
+        false -> spans(1, N, Packed, T0, none, rw_hash:no_region(), T0, T0, {C, R, Dt}, #{})
     end.
 
-%% State I of N of the step (at substep T) and the rest.
+%% State I of N of the step (at substep T) and the rest. Box is the cells
+%% of the run from Ta to Tb (none after a wide state, a run of its own).
 spans(I, N, _Packed, _T, Box, _Region, Ta, Tb, _CRDt, Acc) when I > N ->
     add_run(Box, Ta, Tb, Acc);
 spans(I, N, Packed, T, Box, Region, Ta, Tb, {C, R, Dt} = CRDt, Acc) ->
@@ -249,17 +253,31 @@ spans(I, N, Packed, T, Box, Region, Ta, Tb, {C, R, Dt} = CRDt, Acc) ->
         false ->
             case rw_hash:box(AABB, C) of
                 Box -> spans(I + 1, N, Packed, T + Dt, Box, Region, Ta, T, CRDt, Acc);
-                New -> spans(I + 1, N, Packed, T + Dt, New, rw_hash:region(New, C), T, T, CRDt,
-                             add_run(Box, Ta, Tb, Acc))
+                New ->
+                    Acc1 = add_run(Box, Ta, Tb, Acc),
+                    case wide(New, Packed, I) of
+                        false -> spans(I + 1, N, Packed, T + Dt, New, rw_hash:region(New, C), T, T, CRDt, Acc1);
+                        true ->
+                            Cells = rw_hash:swept_cells(rw_states:position(Packed, I),
+                                                        rw_states:displacement(Packed, I), R, C),
+                            spans(I + 1, N, Packed, T + Dt, none, rw_hash:no_region(), T, T, CRDt,
+                                  add_cells(Cells, T, T, Acc1))
+                    end
             end
     end.
 
-add_run(Box, Ta, Tb, Acc) ->
+%% A box of many cells around a swept state, whose own cells are fewer.
+wide(Box, Packed, I) -> rw_hash:cut(Box) andalso rw_states:displacement(Packed, I) =/= undefined.
+
+add_run(none, _Ta, _Tb, Acc) -> Acc;
+add_run(Box, Ta, Tb, Acc) -> add_cells(rw_hash:box_cells(Box), Ta, Tb, Acc).
+
+add_cells(Cells, Ta, Tb, Acc) ->
     lists:foldl(fun(C, A) -> case A of
                                  #{C := {First, _}} -> A#{C => {First, Tb}};
                                  _ -> A#{C => {Ta, Tb}}
                              end
-                end, Acc, rw_hash:box_cells(Box)).
+                end, Acc, Cells).
 
 %% The box around state I of a step (swept over its substep with CCD).
 aabb(Packed, I, R) ->

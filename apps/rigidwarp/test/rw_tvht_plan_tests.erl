@@ -105,3 +105,21 @@ moved_members_move_in_the_last_plan_test() ->
                                             end}
           end, {none, Starts0, 0}, lists:seq(1, 100)),
     ?assert(Moved > 50).
+
+%% With CCD, a sphere swept across many cells at every substep is planned
+%% in the cells it can touch on the way (rw_hash:swept_cells/4): each of
+%% them at its substep, and far fewer than its swept boxes hold (a
+%% diagonal move's box grows as the cube of its length).
+fast_diagonal_sphere_test() ->
+    Sp = spheres(1),
+    V = {30.0, 30.0, -30.0},
+    N = 5,
+    Packed = rw_states:pack([#st{p = rw_vec:scale(V, float(I)), v = V} || I <- lists:seq(0, N - 1)],
+                            [V || _ <- lists:seq(1, N)], false, true),
+    {_, Plan} = rw_tvht_plan:write(self(), 0, Sp, [Packed], (model())#model{ccd = true}, {?CELL, ?DT}, 4),
+    Swept = [{rw_states:position(Packed, K), rw_states:displacement(Packed, K), K - 1} || K <- lists:seq(1, N)],
+    Occupied = occupancy(Plan),
+    [?assert(lists:member({C, 1, T}, Occupied)) || {P, D, T} <- Swept, C <- rw_hash:swept_cells(P, D, 0.5, ?CELL)],
+    Planned = lists:usort([C || {_, Cells, _} <- Plan, C <- Cells]),
+    Boxes = lists:usort([C || {P, D, _} <- Swept, C <- rw_hash:cells(rw_shape:swept_aabb(P, D, 0.5), ?CELL)]),
+    ?assert(10 * length(Planned) < length(Boxes)).

@@ -6,8 +6,8 @@
 %%            groups, rw_regroup; an island's neighbour list, rw_island);
 %%            spans are pairs of closed intervals that overlap (the accuracy
 %%            bench's missed collisions, rw_accuracy).
-%%   grid/3   a uniform grid of rw_hash cells: the pairs whose boxes share a
-%%            cell (the reference engine, rw_reference; the scene
+%%   grid/3   a uniform grid of rw_hash cells: the pairs whose boxes (or
+%%            swept spheres) share a cell (the reference engine, rw_reference; the scene
 %%            validator's overlaps, rw_scene).
 %% A sphere pair is found when its test passes and the second's centre is
 %% closer than the first's reach along each axis: with a reach no smaller
@@ -84,14 +84,14 @@ overlapping([{Lo, KB, _} | Rest], Hi, KA, Acc) when Lo =< Hi ->
     overlapping(Rest, Hi, KA, [{min(KA, KB), max(KA, KB)} | Acc]);
 overlapping(_, _Hi, _KA, Acc) -> Acc.
 
-%% Every pair of items 1..N whose boxes (BoxOf(K) for item K) share a cell
-%% of the grid of side CellSize (rw_hash:cells/2), once, as {A, B} with
-%% A < B. The order is fixed by the boxes: cell by cell in the order of the
-%% cells in a map, each pair where it first appears. (Boxes are asked for
-%% one at a time rather than given as a list: the reference engine calls
-%% this at every substep, and a list would be built and collected each
-%% time.)
--spec grid(non_neg_integer(), fun((pos_integer()) -> rw_shape:aabb()), float()) -> [{pos_integer(), pos_integer()}].
+%% Every pair of items 1..N whose extents (BoxOf(K) for item K: a box, or
+%% a swept sphere) share a cell of the grid of side CellSize
+%% (rw_hash:cells/2), once, as {A, B} with A < B. The order is fixed by the
+%% extents: cell by cell in the order of the cells in a map, each pair
+%% where it first appears. (Extents are asked for one at a time rather
+%% than given as a list: the reference engine calls this at every substep,
+%% and a list would be built and collected each time.)
+-spec grid(non_neg_integer(), fun((pos_integer()) -> rw_hash:extent()), float()) -> [{pos_integer(), pos_integer()}].
 grid(N, BoxOf, CellSize) ->
     {_, Pairs} = maps:fold(fun(_, [_], Acc) -> Acc;
                               (_, Ks, Acc) -> once([{A, B} || A <- Ks, B <- Ks, A < B], Acc)

@@ -1,8 +1,9 @@
 %% Volumetric hashing: which integer cells of Z^3 a box touches, and which
 %% bucket of a pool owns a cell. Cells are unbounded (bignums far away).
 -module(rw_hash).
--export([cells/2, cell_of/2, bucket/2, box/2, box_cells/1, box_size/1, region/2, in_region/2]).
--export_type([cell/0, box/0, region/0]).
+-export([cells/2, swept_cells/4, cut/1, cell_of/2, bucket/2, box/2, box_cells/1, box_size/1, region/2, no_region/0,
+         in_region/2]).
+-export_type([cell/0, box/0, region/0, extent/0]).
 
 -type cell() :: {integer(), integer(), integer()}.
 %% The integer ranges of cells an AABB touches: {X0, X1, Y0, Y1, Z0, Z1}.
@@ -13,10 +14,57 @@
 -type region() :: {float(), float(), float(), float(), float(), float(),
                    float(), float(), float(), float(), float(), float()}.
 
-%% Every cell of side CellSize that the box touches, in lexicographic
-%% order (the order in which the TVHT locks them, Lemma 1).
--spec cells(rw_shape:aabb(), float()) -> [cell()].
+%% What a body covers over a substep: a box, or a sphere of radius R whose
+%% centre moves from P by D (with CCD).
+-type extent() :: rw_shape:aabb() | {swept, P :: rw_vec:vec(), D :: rw_vec:vec(), R :: float()}.
+
+%% A swept sphere whose box holds more cells than this is covered by the
+%% boxes of pieces of its move instead (swept_cells/4).
+-define(FEW_CELLS, 27).
+
+%% Every cell of side CellSize that the extent touches, in lexicographic
+%% order (the order in which the TVHT locks them, Lemma 1): a box's cells,
+%% or a swept sphere's (swept_cells/4).
+-spec cells(extent(), float()) -> [cell()].
+cells({swept, P, D, R}, S) -> swept_cells(P, D, R, S);
 cells(AABB, S) -> box_cells(box(AABB, S)).
+
+%% Does swept_cells/4 cut a move whose swept box is Box into pieces?
+-spec cut(box()) -> boolean().
+cut(Box) -> box_size(Box) > ?FEW_CELLS.
+
+%% The cells of the box of a sphere of radius R whose centre moves from P
+%% by D that the sphere can touch on the way, in lexicographic order. A box
+%% of few cells is taken whole. A longer move is cut into pieces at most a
+%% cell or a diameter long along every axis, and each piece's box (padded
+%% far above the rounding of the points that cut them) is taken: along a
+%% diagonal the
+%% swept box's cells grow as the cube of the move's length, the pieces' as
+%% its length. A sphere touches nothing at any point of its move outside
+%% the cells of the piece it is on, so two swept spheres that touch share
+%% a cell of both covers, as they share one of both boxes.
+-spec swept_cells(rw_vec:vec(), rw_vec:vec(), float(), float()) -> [cell()].
+swept_cells({X, Y, Z} = P, {DX, DY, DZ} = D, R, S) ->
+    {X0, X1, Y0, Y1, Z0, Z1} = Box = box(rw_shape:swept_aabb(P, D, R), S),
+    case cut(Box) of
+        false -> box_cells(Box);
+        true ->
+            K = trunc(rw_vec:max_abs(D) / max(S, 2.0 * R)) + 1,
+            Pad = R + 1.0e-12 * (rw_vec:max_abs(P) + rw_vec:max_abs(D) + R),
+            At = fun(I) when I =:= K -> {X + DX, Y + DY, Z + DZ};
+                    (I) -> F = I / K, {X + DX * F, Y + DY * F, Z + DZ * F}
+                 end,
+            Pieces = [begin
+                          {{A0, B0, C0}, {A1, B1, C1}} = {At(I), At(I + 1)},
+                          {PX0, PX1, PY0, PY1, PZ0, PZ1} =
+                              box({{min(A0, A1) - Pad, min(B0, B1) - Pad, min(C0, C1) - Pad},
+                                   {max(A0, A1) + Pad, max(B0, B1) + Pad, max(C0, C1) + Pad}}, S),
+                          %% (within the swept box: the cover stays a part of it)
+                          box_cells({max(PX0, X0), min(PX1, X1), max(PY0, Y0), min(PY1, Y1),
+                                     max(PZ0, Z0), min(PZ1, Z1)})
+                      end || I <- lists:seq(0, K - 1)],
+            lists:usort(lists:append(Pieces))
+    end.
 
 -spec box(rw_shape:aabb(), float()) -> box().
 box({{X0, Y0, Z0}, {X1, Y1, Z1}}, S) ->
@@ -72,6 +120,10 @@ first_in(I, S, [V | Rest]) ->
         true -> float(V);
         false -> first_in(I, S, Rest)
     end.
+
+%% A region no box is in: every box is hashed.
+-spec no_region() -> region().
+no_region() -> {1.0, -1.0, 1.0, -1.0, 1.0, -1.0, 1.0, -1.0, 1.0, -1.0, 1.0, -1.0}.
 
 -spec in_region(rw_shape:aabb(), region()) -> boolean().
 in_region({{X0, Y0, Z0}, {X1, Y1, Z1}}, {Ax, Bx, Cx, Dx, Ay, By, Cy, Dy, Az, Bz, Cz, Dz}) ->

@@ -16,7 +16,8 @@
          prop_respond_is_ordered_fold/0, prop_container_is_six_walls/0,
          prop_fixture_box_skips_only_misses/0, prop_fixture_then_pair_energy/0, prop_fixtures_together_energy/0,
          prop_island_equals_all_pairs/0, prop_island_equals_all_pairs/1, prop_sweep_spheres_equals_all_pairs/0,
-         prop_sweep_spans_equals_all_pairs/0, prop_grid_equals_shared_cells/0]).
+         prop_sweep_spans_equals_all_pairs/0, prop_grid_equals_shared_cells/0,
+         prop_swept_cells_cover_the_move/0, prop_swept_contacts_share_a_cell/0]).
 %% generators, for use from a shell: proper_gen:pick(rw_physics_prop:pair_case())
 -export([position/0, far_vec/0, vec/0, direction/0, quat/0, sphere/1, model/0, state/1, pair_case/0,
          pair_case/1, fixture_probe/0]).
@@ -463,6 +464,66 @@ prop_hash_covers_aabb() ->
                               andalso lists:all(fun(B) -> is_integer(B) andalso B >= 0 andalso B < NBuckets end,
                                                 Buckets))
             end)).
+
+%% swept_cells/4 lists, in order and once each, cells of the swept box
+%% only, among them the cell of every point the sphere passes through, and
+%% a long move's pieces hold a few cells each: linear in the move's length,
+%% where its box grows as the cube along a diagonal.
+prop_swept_cells_cover_the_move() ->
+    ?FORALL({P, D, R, S, Points}, swept_case(),
+            ?SAFE(begin
+                Cells = rw_hash:swept_cells(P, D, R, S),
+                {X0, X1, Y0, Y1, Z0, Z1} = Box = rw_hash:box(rw_shape:swept_aabb(P, D, R), S),
+                Outside = [C || {X, Y, Z} = C <- Cells, X < X0 orelse X > X1 orelse Y < Y0 orelse Y > Y1
+                                                        orelse Z < Z0 orelse Z > Z1],
+                Missing = [{Q, rw_hash:cell_of(Q, S)} || Q <- passed(P, D, R, Points),
+                                                         not lists:member(rw_hash:cell_of(Q, S), Cells)],
+                Pieces = trunc(rw_vec:max_abs(D) / max(S, 2.0 * R)) + 1,
+                PerAxis = trunc(max(S, 2.0 * R) / S + 2.0 * R / S) + 3,
+                Bound = case rw_hash:cut(Box) of
+                            false -> rw_hash:box_size(Box);
+                            true -> Pieces * PerAxis * PerAxis * PerAxis
+                        end,
+                ?WHENFAIL(report("sphere ~p r ~p moving ~p, cell ~p: ~p cells (bound ~p, box ~p); missing ~p, outside ~p",
+                                 [P, R, D, S, length(Cells), Bound, rw_hash:box_size(Box), Missing, Outside]),
+                          Missing =:= [] andalso Outside =:= [] andalso Cells =:= lists:usort(Cells)
+                              andalso length(Cells) =< Bound)
+            end)).
+
+%% Two swept spheres that the narrowphase finds touching share a cell of
+%% their covers (swept_cells/4), so the grid and the TVHT test them:
+%% spheres placed to meet at a random fraction of the move, or just to
+%% miss, moving up to hundreds of cells per substep.
+prop_swept_contacts_share_a_cell() ->
+    ?FORALL({{PA, DA, RA, S, _}, DB, Ratio, Toi, Dir, Gap},
+            {swept_case(), oneof([{0.0, 0.0, 0.0}, speed_vec(1.0), speed_vec(10.0)]), oneof([1.0, float(0.3, 3.0)]),
+             float(0.0, 1.0), direction(), float(0.9, 1.1)},
+            ?SAFE(begin
+                RB = Ratio * RA,
+                %% at Toi their centres are Gap x the sum of their radii apart
+                Meet = rw_vec:madd(rw_vec:madd(PA, DA, Toi), Dir, Gap * (RA + RB)),
+                PB = rw_vec:madd(Meet, DB, -Toi),
+                Contact = rw_narrow:swept_sphere_sphere(PA, DA, RA, PB, DB, RB),
+                Shared = ordsets:intersection(rw_hash:swept_cells(PA, DA, RA, S), rw_hash:swept_cells(PB, DB, RB, S)),
+                Grid = rw_broadphase:grid(2, fun(1) -> {swept, PA, DA, RA}; (2) -> {swept, PB, DB, RB} end, S),
+                ?WHENFAIL(report("A ~p moving ~p r ~p, B ~p moving ~p r ~p, cell ~p: ~p, shared ~p, grid ~p",
+                                 [PA, DA, RA, PB, DB, RB, S, Contact, Shared, Grid]),
+                          Contact =:= none orelse (Shared =/= [] andalso Grid =:= [{1, 2}]))
+            end)).
+
+%% A sphere's move, its radius, the cell size (from one to twenty radii:
+%% the reference's cells are two, the TVHT's five by default) and points
+%% to check along the move: slow and fast, along an axis and across, near
+%% the origin and far from it.
+swept_case() ->
+    ?LET({P, Dir, Speed, R, Cell}, {position(), direction(), oneof([float(0.0, 1.0), float(1.0, 30.0)]),
+                                    oneof([0.05, float(0.01, 1.0)]), oneof([2.0, 5.0, float(1.0, 20.0)])},
+         {P, rw_vec:scale(Dir, Speed), R, Cell * R,
+          vector(20, {float(0.0, 1.0), direction(), float(0.0, 0.999999)})}).
+
+%% Points a sphere of radius R covers as its centre moves from P by D: at
+%% fraction T of the move, within F x R of the centre along Dir.
+passed(P, D, R, Points) -> [rw_vec:madd(rw_vec:madd(P, D, T), Dir, F * R) || {T, Dir, F} <- Points].
 
 %% An AABB whose corners are in the region of a box hashes to that box: the
 %% region is what lets a body skip hashing a state again. Corners are moved
