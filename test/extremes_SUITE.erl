@@ -329,8 +329,9 @@ speed(Id, Frame) -> {_, _, V, _, _} = body(Id, Frame), rw_vec:len(V).
 %% passing 0.02 m from another without touching it; Time Warp equals the
 %% reference. Both hash a swept sphere to the cells it can touch on its
 %% way (rw_hash:swept_cells/4), a hundred-odd per substep here: the cells
-%% of its swept box, the cube of its move, were a million per substep in
-%% the reference's grid (cells of two radii), which ran out of time.
+%% of its swept box, the cube of its move, would be a million per substep
+%% in the reference's grid (cells of two radii), far beyond the
+%% reference's time limit.
 sphere_across_cells_diagonally(_Config) ->
     V = 10000.0,
     Scene = scene(#{<<"duration_ms">> => 100, <<"frame_ms">> => 10,
