@@ -123,8 +123,9 @@ drain(Ref) -> receive {Ref, F} -> [F | drain(Ref)] after 0 -> [] end.
           {ok, {[tuple()], map()}} | {error, {reference_too_slow, pos_integer()} | {reference_too_big, pos_integer()}}.
 bounded_reference(Scene) ->
     Tag = make_ref(),
-    {Pid, Mon} = spawn_opt(fun() -> exit({Tag, reference_run(Scene)}) end, [monitor, {max_heap_size, #{size => ?REFERENCE_MAX_WORDS, kill => true,
-                                                            error_logger => false}}]),
+    {Pid, Mon} = spawn_opt(fun() -> exit({Tag, reference_run(Scene)}) end,
+                           [monitor, {max_heap_size, #{size => ?REFERENCE_MAX_WORDS, kill => true,
+                                                       error_logger => false}}]),
     receive
         {'DOWN', Mon, process, Pid, {Tag, Result}} -> {ok, Result};
         {'DOWN', Mon, process, Pid, killed} -> {error, {reference_too_big, ?REFERENCE_MAX_WORDS}}

@@ -7,8 +7,8 @@
 %%            spans are pairs of closed intervals that overlap (the accuracy
 %%            bench's missed collisions, rw_accuracy).
 %%   grid/3   a uniform grid of rw_hash cells: the pairs whose boxes (or
-%%            swept spheres) share a cell (the reference engine, rw_reference; the scene
-%%            validator's overlaps, rw_scene).
+%%            swept spheres) share a cell (the reference engine,
+%%            rw_reference; the scene validator's overlaps, rw_scene).
 %% A sphere pair is found when its test passes and the second's centre is
 %% closer than the first's reach along each axis: with a reach no smaller
 %% than the test's distance, the pairs of a test of every pair.

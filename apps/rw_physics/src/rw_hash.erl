@@ -38,9 +38,8 @@ cut(Box) -> box_size(Box) > ?FEW_CELLS.
 %% of few cells is taken whole. A longer move is cut into pieces at most a
 %% cell or a diameter long along every axis, and each piece's box (padded
 %% far above the rounding of the points that cut them) is taken: along a
-%% diagonal the
-%% swept box's cells grow as the cube of the move's length, the pieces' as
-%% its length. A sphere touches nothing at any point of its move outside
+%% diagonal the swept box's cells grow as the cube of the move's length,
+%% the pieces' as its length. A sphere touches nothing at any point of its move outside
 %% the cells of the piece it is on, so two swept spheres that touch share
 %% a cell of both covers, as they share one of both boxes.
 -spec swept_cells(rw_vec:vec(), rw_vec:vec(), float(), float()) -> [cell()].
