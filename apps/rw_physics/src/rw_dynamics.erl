@@ -47,23 +47,103 @@ step(M, St, Effects) ->
 %% reverse the approach, and at restitution 1 send the sphere off at three
 %% times its speed, bounce after bounce. In turn, the second contact finds
 %% the sphere already leaving and does nothing.
+%%
+%% With CCD a sphere that already touches fixtures at the start of the
+%% substep meets those first, in turn as above; then it meets what its
+%% path reaches, one impact at a time: the earliest contact along the
+%% path, after which the rest of the path is swept again from the point of
+%% impact (impacts/9). A sphere that crosses a narrow gap or a small
+%% container within one substep meets the far wall too, instead of passing
+%% through it.
 -spec fixture_effects(#model{}, #sphere{}, #st{}, [#fixture{}]) -> [keyed_effect()].
-fixture_effects(#model{ccd = Ccd} = M, #sphere{radius = R} = S, #st{p = P} = St, Fixtures) ->
-    Disp = case Ccd of
-               true -> rw_integrate:free_displacement(M, St);
-               false -> undefined
-           end,
-    case [{{FIdx, Feature}, C} || #fixture{idx = FIdx} = Fixture <- Fixtures,
-                                  {Feature, C} <- fixture_contacts(P, Disp, R, Fixture)] of
+fixture_effects(#model{ccd = false} = M, #sphere{radius = R} = S, #st{p = P} = St, Fixtures) ->
+    case contacts(P, undefined, R, Fixtures) of
         [] -> [];
         [{Key, C}] -> [{Key, rw_response:fixture(M, S, St, C)}];
         Contacts -> in_turn(M, S, St, Contacts)
+    end;
+fixture_effects(M, #sphere{radius = R} = S, #st{p = P} = St, Fixtures) ->
+    Disp = rw_integrate:free_displacement(M, St),
+    case contacts(P, Disp, R, Fixtures) of
+        [] -> [];
+        Contacts ->
+            Reach = 2.0 * vlen(Disp),
+            case lists:partition(fun({_, #contact{toi = Toi}}) -> Toi > 0.0 end, Contacts) of
+                {Later, []} -> impacts(M, S, St, Fixtures, [], 0.0, Later, Reach, 1);
+                {_, Now} -> next_leg(M, S, St, Fixtures, in_turn(M, S, St, Now), 0.0, Reach, 1)
+            end
     end.
+
+contacts(P, Disp, R, Fixtures) ->
+    [{{FIdx, Feature}, C} || #fixture{idx = FIdx} = Fixture <- Fixtures,
+                             {Feature, C} <- fixture_contacts(P, Disp, R, Fixture)].
 
 in_turn(_M, _S, _St, []) -> [];
 in_turn(M, S, St, [{Key, C} | Rest]) ->
     Keyed = {Key, rw_response:fixture(M, S, St, C)},
     [Keyed | in_turn(M, S, after_fixtures(St, [Keyed]), Rest)].
+
+%% The sphere has met Effects (in the order they acted), the last of them
+%% at fraction Last of the substep. Of the Contacts along the path from
+%% there (their toi a fraction of that path), the earliest that the sphere
+%% approaches is the next impact (one it leaves, as in a corner it has just
+%% bounced out of, is passed over); its effect acts from then on (its toi
+%% made a fraction of the whole substep), and the path from there is swept
+%% next. A feature met again is keyed {Fixture, {Feature, Pass}}, so that
+%% keys stay unique; the effects are returned in key order.
+impacts(_M, _S, _St, _Fixtures, Effects, _Last, [], _Reach, _Pass) -> lists:keysort(1, Effects);
+impacts(M, S, St, Fixtures, Effects, Last, Contacts, Reach, Pass) ->
+    {{FIdx, Feature} = Key, #contact{toi = Along} = C} = First = first_impact(Contacts),
+    Toi = Last + Along * (1.0 - Last),
+    case rw_response:fixture(M, S, after_fixtures(St, Effects), C#contact{toi = Toi}) of
+        {{DX, DY, DZ}, _, _} when DX == 0.0, DY == 0.0, DZ == 0.0 ->
+            %% (zeros of either sign)
+            impacts(M, S, St, Fixtures, Effects, Last, lists:delete(First, Contacts), Reach, Pass);
+        Effect ->
+            Unique = case lists:keymember(Key, 1, Effects) of
+                         false -> Key;
+                         true -> {FIdx, {Feature, Pass}}
+                     end,
+            next_leg(M, S, St, Fixtures, Effects ++ [{Unique, Effect}], Toi, Reach, Pass + 1)
+    end.
+
+%% The path from fraction Last of the substep on: a straight leg (the
+%% displacement the sphere's velocities now give over a whole substep,
+%% times 1 - Last) that ends where the effects so far put the sphere. A
+%% feature it touches at its start is a contact there only if the sphere
+%% has not met it yet (it is in contact with the one it has just met).
+%% The legs are swept while every point of them lies within Reach (twice
+%% the untouched displacement) of where the sphere started, so that
+%% rw_island, which lists the fixtures within that reach, finds what the
+%% whole list finds, and for at most ?PASSES impacts: a sphere wedged
+%% between two walls at a speed that would bounce it more often within
+%% one substep passes.
+-define(PASSES, 64).
+next_leg(_M, _S, _St, _Fixtures, Effects, _Last, _Reach, Pass) when Pass > ?PASSES -> lists:keysort(1, Effects);
+next_leg(M, #sphere{radius = R} = S, #st{p = P} = St, Fixtures, Effects, Last, Reach, Pass) ->
+    {V, W, U} = respond(St, [E || {_, E} <- Effects]),
+    #st{p = End} = rw_integrate:advance(M, St, V, W, U),
+    Leg = vscale(rw_integrate:free_displacement(M, St#st{v = V, w = W}), 1.0 - Last),
+    Start = vsub(End, Leg),
+    case vlen(vsub(Start, P)) + vlen(Leg) =< Reach of
+        true ->
+            Met = [met_key(K) || {K, _} <- Effects],
+            Next = [KC || {Key, #contact{toi = Toi}} = KC <- contacts(Start, Leg, R, Fixtures),
+                          Toi > 0.0 orelse not lists:member(Key, Met)],
+            impacts(M, S, St, Fixtures, Effects, Last, Next, Reach, Pass);
+        false ->
+            lists:keysort(1, Effects)
+    end.
+
+met_key({FIdx, {Feature, _Pass}}) -> {FIdx, Feature};
+met_key(Key) -> Key.
+
+%% The earliest of some contacts; of several at once, the first in key
+%% order.
+first_impact([First | Rest]) ->
+    lists:foldl(fun({_, #contact{toi = T}} = KC, {_, #contact{toi = Best}}) when T < Best -> KC;
+                   (_, Acc) -> Acc
+                end, First, Rest).
 
 %% Whether a sphere of radius R at P touches one of Fixtures, as
 %% fixture_effects/4 finds contacts without CCD (without building them

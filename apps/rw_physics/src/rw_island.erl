@@ -19,7 +19,7 @@
 %% Fixtures are listed per member the same way: those within its radius
 %% plus half a skin (one radius) of where it was when the list was built,
 %% valid while it stays within half a skin of there (absolutely: fixtures
-%% do not move). A member far from every post, wall and floor of a scene
+%% do not move), with CCD counting twice its displacement (reach/1). A member far from every post, wall and floor of a scene
 %% then tests none of them: a sphere in free flight in a container checks
 %% its move from the anchor, not the six walls, at each substep.
 -module(rw_island).
@@ -223,7 +223,7 @@ displacements(M, States) -> list_to_tuple([rw_integrate:free_displacement(M, St)
 fixtures_near(#island{fixtures = []} = I, _States, _Disps) -> I;
 fixtures_near(#island{fanchors = undefined} = I, States, Disps) -> fixtures_fresh(I, States, Disps);
 fixtures_near(#island{fanchors = Anchors, flimit = Limit} = I, States, Disps) ->
-    case within(States, Anchors, vzero(), Disps, vzero(), Limit) of
+    case within(States, Anchors, vzero(), reach(Disps), vzero(), Limit) of
         true -> I;
         false -> fixtures_fresh(I, States, Disps)
     end.
@@ -236,7 +236,7 @@ fixtures_fresh(#island{spheres = Spheres, fixtures = Fixtures} = I, States, Disp
     Reach = lists:max([R || #sphere{radius = R} <- tuple_to_list(Spheres)]),
     Scale = lists:max([rw_vec:max_abs(P) || P <- tuple_to_list(Anchors)]) + 2.0 * Reach,
     Limit = 0.5 * Reach - 1.0e-9 * Scale,
-    case within(States, Anchors, vzero(), Disps, vzero(), Limit) of
+    case within(States, Anchors, vzero(), reach(Disps), vzero(), Limit) of
         true ->
             Near = list_to_tuple([[F || F <- Fixtures, may_touch(F, element(K, Anchors), R + 0.5 * Reach)]
                                   || {K, #sphere{radius = R}} <- lists:zip(lists:seq(1, tuple_size(Spheres)),
@@ -245,6 +245,13 @@ fixtures_fresh(#island{spheres = Spheres, fixtures = Fixtures} = I, States, Disp
         false ->
             I#island{near = list_to_tuple([Fixtures || _ <- tuple_to_list(Spheres)]), fanchors = undefined}
     end.
+
+%% How far a member's centre may get from where it starts the substep: with
+%% CCD, twice its free displacement (after a bounce rw_dynamics sweeps the
+%% rest of its path, and those legs together are no longer than the
+%% untouched path).
+reach(undefined) -> undefined;
+reach(Disps) -> list_to_tuple([vscale(D, 2.0) || D <- tuple_to_list(Disps)]).
 
 %% A fixture may touch a sphere whose centre stays within Reach of P: the
 %% narrowphase rejects a sphere farther than its radius outside the box, on
