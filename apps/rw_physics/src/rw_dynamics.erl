@@ -54,31 +54,34 @@ step(M, St, Effects) ->
 %% path, after which the rest of the path is swept again from the point of
 %% impact (impacts/9). A sphere that crosses a narrow gap or a small
 %% container within one substep meets the far wall too, instead of passing
-%% through it.
+%% through it. A sphere whose path reaches nothing (one resting on a floor
+%% touches it at the start) sweeps only once.
 -spec fixture_effects(#model{}, #sphere{}, #st{}, [#fixture{}]) -> [keyed_effect()].
 fixture_effects(#model{ccd = false} = M, #sphere{radius = R} = S, #st{p = P} = St, Fixtures) ->
-    case contacts(P, undefined, R, Fixtures) of
-        [] -> [];
-        [{Key, C}] -> [{Key, rw_response:fixture(M, S, St, C)}];
-        Contacts -> in_turn(M, S, St, Contacts)
-    end;
+    in_turn(M, S, St, contacts(P, undefined, R, Fixtures));
 fixture_effects(M, #sphere{radius = R} = S, #st{p = P} = St, Fixtures) ->
     Disp = rw_integrate:free_displacement(M, St),
     case contacts(P, Disp, R, Fixtures) of
         [] -> [];
         Contacts ->
-            Reach = 2.0 * vlen(Disp),
-            case lists:partition(fun({_, #contact{toi = Toi}}) -> Toi > 0.0 end, Contacts) of
-                {Later, []} -> impacts(M, S, St, Fixtures, [], 0.0, Later, Reach, 1);
-                {_, Now} -> next_leg(M, S, St, Fixtures, in_turn(M, S, St, Now), 0.0, Reach, 1)
+            case touching(Contacts, [], []) of
+                {Now, []} -> in_turn(M, S, St, Now);
+                {Now, Later} -> impacts(M, S, St, Fixtures, in_turn(M, S, St, Now), 0.0, Later, 2.0 * vlen(Disp), 1)
             end
     end.
+
+%% The contacts touching at the start of the substep, and those along the
+%% path, each in the order given.
+touching([], Now, Later) -> {lists:reverse(Now), lists:reverse(Later)};
+touching([{_, #contact{toi = Toi}} = KC | Rest], Now, Later) when Toi > 0.0 -> touching(Rest, Now, [KC | Later]);
+touching([KC | Rest], Now, Later) -> touching(Rest, [KC | Now], Later).
 
 contacts(P, Disp, R, Fixtures) ->
     [{{FIdx, Feature}, C} || #fixture{idx = FIdx} = Fixture <- Fixtures,
                              {Feature, C} <- fixture_contacts(P, Disp, R, Fixture)].
 
 in_turn(_M, _S, _St, []) -> [];
+in_turn(M, S, St, [{Key, C}]) -> [{Key, rw_response:fixture(M, S, St, C)}];
 in_turn(M, S, St, [{Key, C} | Rest]) ->
     Keyed = {Key, rw_response:fixture(M, S, St, C)},
     [Keyed | in_turn(M, S, after_fixtures(St, [Keyed]), Rest)].
@@ -121,9 +124,9 @@ impacts(M, S, St, Fixtures, Effects, Last, Contacts, Reach, Pass) ->
 -define(PASSES, 64).
 next_leg(_M, _S, _St, _Fixtures, Effects, _Last, _Reach, Pass) when Pass > ?PASSES -> lists:keysort(1, Effects);
 next_leg(M, #sphere{radius = R} = S, #st{p = P} = St, Fixtures, Effects, Last, Reach, Pass) ->
-    {V, W, U} = respond(St, [E || {_, E} <- Effects]),
-    #st{p = End} = rw_integrate:advance(M, St, V, W, U),
-    Leg = vscale(rw_integrate:free_displacement(M, St#st{v = V, w = W}), 1.0 - Last),
+    {V, _W, U} = respond(St, [E || {_, E} <- Effects]),
+    End = rw_integrate:position(M, P, V, U),
+    Leg = vscale(rw_integrate:velocity_displacement(M, P, V), 1.0 - Last),
     Start = vsub(End, Leg),
     case vlen(vsub(Start, P)) + vlen(Leg) =< Reach of
         true ->
