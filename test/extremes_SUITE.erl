@@ -353,12 +353,13 @@ sphere_across_cells_diagonally(_Config) ->
     ?assertBitwise(Frames, timewarp(Scene, #{})).
 
 %% With CCD, a sphere meets what its path reaches after a bounce within the
-%% same substep, however often: at 20 km/s in a hollow box of 10 m (14, 10
-%% and 6 m a substep along the axes, up to four impacts a substep) and at
-%% 100 m/s across a slot 5 cm wide (radius 1 cm: three impacts a substep),
+%% same substep, however often: at 15.6 km/s in a hollow box of 10 m (6, 12
+%% and 8 m a substep along the axes: one to four impacts a substep) and at
+%% 100 m/s across a slot 5 cm wide (radius 1 cm: three or four impacts a
+%% substep),
 %% elastic, a frame every substep for 200 ms. Every centre stays inside
-%% (swept only along the path it took before its first impact, the sphere
-%% was outside the box in 199 of the 201 frames, by up to 1.9 m), the
+%% (swept only along the path it takes before its first impact, the sphere
+%% would be outside the box in 199 of the 201 frames, by up to 1.9 m), the
 %% speed is kept, and Time Warp equals the reference.
 container_and_slot_crossed_within_a_substep(_Config) ->
     V = 20000.0,
