@@ -390,7 +390,8 @@ container_and_slot_crossed_within_a_substep(_Config) ->
          ?assertBitwise(Frames, timewarp(Scene, #{buckets => 3}))
      end || {Name, Scene, Inside} <- [{"container", Container,
                                        fun(P) -> rw_vec:max_abs(P) =< 5.0 - R + 1.0e-9 end},
-                                      {"slot", Slot, fun({X, _, _}) -> X >= 0.01 - 1.0e-12 andalso X =< 0.04 + 1.0e-12 end}]],
+                                      {"slot", Slot,
+                                       fun({X, _, _}) -> X >= 0.01 - 1.0e-12 andalso X =< 0.04 + 1.0e-12 end}]],
     ok.
 
 %% A sphere placed exactly touching a plane (touching is not yet a contact)

@@ -19,9 +19,10 @@
 %% Fixtures are listed per member the same way: those within its radius
 %% plus half a skin (one radius) of where it was when the list was built,
 %% valid while it stays within half a skin of there (absolutely: fixtures
-%% do not move), with CCD counting twice its displacement (reach/1). A member far from every post, wall and floor of a scene
-%% then tests none of them: a sphere in free flight in a container checks
-%% its move from the anchor, not the six walls, at each substep.
+%% do not move), with CCD counting twice its displacement (reach/1). A
+%% member far from every post, wall and floor of a scene then tests none of
+%% them: a sphere in free flight in a container checks its move from the
+%% anchor, not the six walls, at each substep.
 -module(rw_island).
 -include("rw_physics.hrl").
 -export([new/3, size/1, posts/3, step/3, post/3, advance/3, free_zone/1, touches_no_fixture/4]).
@@ -248,8 +249,7 @@ fixtures_fresh(#island{spheres = Spheres, fixtures = Fixtures} = I, States, Disp
 
 %% How far a member's centre may get from where it starts the substep: with
 %% CCD, twice its free displacement (after a bounce rw_dynamics sweeps the
-%% rest of its path, and those legs together are no longer than the
-%% untouched path).
+%% rest of its path only while it stays within that reach).
 reach(undefined) -> undefined;
 reach(Disps) -> list_to_tuple([vscale(D, 2.0) || D <- tuple_to_list(Disps)]).
 

@@ -10,8 +10,8 @@
          fixture_box_skips_only_misses/1, fixture_then_pair_energy/1, fixtures_together_energy/1,
          island_equals_all_pairs/1,
          sweep_spheres_equals_all_pairs/1, sweep_spans_equals_all_pairs/1, grid_equals_shared_cells/1,
-         swept_cells_cover_the_move/1, swept_contacts_share_a_cell/1, ccd_keeps_sphere_in_container/1, position_is_advance/1,
-         island_mutants_are_caught/1]).
+         swept_cells_cover_the_move/1, swept_contacts_share_a_cell/1, ccd_keeps_sphere_in_container/1,
+         position_is_advance/1, island_mutants_are_caught/1]).
 
 %% Tests per property; the whole suite takes a few seconds.
 -define(NUMTESTS, 1000).
