@@ -52,7 +52,7 @@ step(M, St, Effects) ->
 %% substep meets those first, in turn as above; then it meets what its
 %% path reaches, one impact at a time: the earliest contact along the
 %% path, after which the rest of the path is swept again from the point of
-%% impact (impacts/9). A sphere that crosses a narrow gap or a small
+%% impact (impacts/10). A sphere that crosses a narrow gap or a small
 %% container within one substep meets the far wall too, instead of passing
 %% through it. A sphere whose path reaches nothing (one resting on a floor
 %% touches it at the start) sweeps only once.
@@ -66,7 +66,9 @@ fixture_effects(M, #sphere{radius = R} = S, #st{p = P} = St, Fixtures) ->
         Contacts ->
             case touching(Contacts, [], []) of
                 {Now, []} -> in_turn(M, S, St, Now);
-                {Now, Later} -> impacts(M, S, St, Fixtures, in_turn(M, S, St, Now), 0.0, Later, 2.0 * vlen(Disp), 1)
+                {Now, Later} ->
+                    Touched = in_turn(M, S, St, Now),
+                    impacts(M, S, St, after_fixtures(St, Touched), Fixtures, Touched, 0.0, Later, 2.0 * vlen(Disp), 1)
             end
     end.
 
@@ -86,22 +88,23 @@ in_turn(M, S, St, [{Key, C} | Rest]) ->
     Keyed = {Key, rw_response:fixture(M, S, St, C)},
     [Keyed | in_turn(M, S, after_fixtures(St, [Keyed]), Rest)].
 
-%% The sphere has met Effects (in the order they acted), the last of them
-%% at fraction Last of the substep. Of the Contacts along the path from
+%% The sphere has met Effects (in the order they acted), which left it
+%% with the velocities of After, the last of them at fraction Last of the
+%% substep. Of the Contacts along the path from
 %% there (their toi a fraction of that path), the earliest that the sphere
 %% approaches is the next impact (one it leaves, as in a corner it has just
 %% bounced out of, is passed over); its effect acts from then on (its toi
 %% made a fraction of the whole substep), and the path from there is swept
 %% next. A feature met again is keyed {Fixture, {Feature, Pass}}, so that
 %% keys stay unique; the effects are returned in key order.
-impacts(_M, _S, _St, _Fixtures, Effects, _Last, [], _Reach, _Pass) -> lists:keysort(1, Effects);
-impacts(M, S, St, Fixtures, Effects, Last, Contacts, Reach, Pass) ->
+impacts(_M, _S, _St, _After, _Fixtures, Effects, _Last, [], _Reach, _Pass) -> lists:keysort(1, Effects);
+impacts(M, S, St, After, Fixtures, Effects, Last, Contacts, Reach, Pass) ->
     {{FIdx, Feature} = Key, #contact{toi = Along} = C} = First = first_impact(Contacts),
     Toi = Last + Along * (1.0 - Last),
-    case rw_response:fixture(M, S, after_fixtures(St, Effects), C#contact{toi = Toi}) of
+    case rw_response:fixture(M, S, After, C#contact{toi = Toi}) of
         {{DX, DY, DZ}, _, _} when DX == 0.0, DY == 0.0, DZ == 0.0 ->
             %% (zeros of either sign)
-            impacts(M, S, St, Fixtures, Effects, Last, lists:delete(First, Contacts), Reach, Pass);
+            impacts(M, S, St, After, Fixtures, Effects, Last, lists:delete(First, Contacts), Reach, Pass);
         Effect ->
             Unique = case lists:keymember(Key, 1, Effects) of
                          false -> Key;
@@ -124,16 +127,18 @@ impacts(M, S, St, Fixtures, Effects, Last, Contacts, Reach, Pass) ->
 -define(PASSES, 64).
 next_leg(_M, _S, _St, _Fixtures, Effects, _Last, _Reach, Pass) when Pass > ?PASSES -> lists:keysort(1, Effects);
 next_leg(M, #sphere{radius = R} = S, #st{p = P} = St, Fixtures, Effects, Last, Reach, Pass) ->
-    {V, _W, U} = respond(St, [E || {_, E} <- Effects]),
-    End = rw_integrate:position(M, P, V, U),
-    Leg = vscale(rw_integrate:velocity_displacement(M, P, V), 1.0 - Last),
+    {V, W, U} = respond(St, [E || {_, E} <- Effects]),
+    %% (positions only: the rotation is not integrated)
+    Plain = M#model{rotation = false},
+    #st{p = End} = rw_integrate:advance(Plain, St, V, W, U),
+    Leg = vscale(rw_integrate:free_displacement(Plain, St#st{v = V}), 1.0 - Last),
     Start = vsub(End, Leg),
     case vlen(vsub(Start, P)) + vlen(Leg) =< Reach of
         true ->
             Met = [met_key(K) || {K, _} <- Effects],
             Next = [KC || {Key, #contact{toi = Toi}} = KC <- contacts(Start, Leg, R, Fixtures),
                           Toi > 0.0 orelse not lists:member(Key, Met)],
-            impacts(M, S, St, Fixtures, Effects, Last, Next, Reach, Pass);
+            impacts(M, S, St, St#st{v = V, w = W}, Fixtures, Effects, Last, Next, Reach, Pass);
         false ->
             lists:keysort(1, Effects)
     end.

@@ -39,9 +39,9 @@ cut(Box) -> box_size(Box) > ?FEW_CELLS.
 %% cell or a diameter long along every axis, and each piece's box (padded
 %% far above the rounding of the points that cut them) is taken: along a
 %% diagonal the swept box's cells grow as the cube of the move's length,
-%% the pieces' as its length. A sphere touches nothing at any point of its move outside
-%% the cells of the piece it is on, so two swept spheres that touch share
-%% a cell of both covers, as they share one of both boxes.
+%% the pieces' as its length. A sphere touches nothing at any point of its
+%% move outside the cells of the piece it is on, so two swept spheres that
+%% touch share a cell of both covers, as they share one of both boxes.
 -spec swept_cells(rw_vec:vec(), rw_vec:vec(), float(), float()) -> [cell()].
 swept_cells({X, Y, Z} = P, {DX, DY, DZ} = D, R, S) ->
     {X0, X1, Y0, Y1, Z0, Z1} = Box = box(rw_shape:swept_aabb(P, D, R), S),

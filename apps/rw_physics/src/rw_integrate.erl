@@ -2,7 +2,7 @@
 %% velocities and the pseudo-velocity of penetration removal.
 -module(rw_integrate).
 -include("rw_physics.hrl").
--export([advance/5, position/4, free_displacement/2, velocity_displacement/3, integrators/0]).
+-export([advance/5, free_displacement/2, integrators/0]).
 -export_type([integrator/0]).
 
 -type integrator() :: symplectic_euler | verlet | explicit_euler.
@@ -32,32 +32,11 @@ advance(#model{dt = Dt, gravity = G, integrator = Int, rotation = Rot}, #st{p = 
         false -> #st{p = P1, v = V1}
     end.
 
-%% The position advance/5 gives, by the same operations, without the rest
-%% of the state (rotation is not integrated). advance/5 keeps its own copy:
-%% it is the hot path of every substep (rw_physics_prop checks that the
-%% two agree bit for bit).
--spec position(#model{}, rw_vec:vec(), rw_vec:vec(), rw_vec:vec()) -> rw_vec:vec().
-position(#model{dt = Dt, gravity = G, integrator = Int}, P, V, U) ->
-    case G of
-        undefined -> vmadd(P, add_nonzero(V, U), Dt);
-        _ ->
-            case Int of
-                symplectic_euler -> vmadd(P, add_nonzero(vmadd(V, G, Dt), U), Dt);
-                explicit_euler -> vmadd(P, add_nonzero(V, U), Dt);
-                verlet -> vmadd(vmadd(P, add_nonzero(V, U), Dt), G, 0.5 * Dt * Dt)
-            end
-    end.
-
 %% How far a body moves over the substep if nothing touches it.
 -spec free_displacement(#model{}, #st{}) -> rw_vec:vec().
 free_displacement(M, #st{p = P, v = V, w = W} = St) ->
     #st{p = P1} = advance(M, St, V, W, vzero()),
     vsub(P1, P).
-
-%% How far a body at P with velocity V moves over the substep if nothing
-%% touches it.
--spec velocity_displacement(#model{}, rw_vec:vec(), rw_vec:vec()) -> rw_vec:vec().
-velocity_displacement(M, P, V) -> vsub(position(M, P, V, vzero()), P).
 
 add_nonzero(V, {0.0, 0.0, 0.0}) -> V;
 add_nonzero(V, U) -> vadd(V, U).

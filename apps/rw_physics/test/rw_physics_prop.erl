@@ -18,7 +18,7 @@
          prop_island_equals_all_pairs/0, prop_island_equals_all_pairs/1, prop_sweep_spheres_equals_all_pairs/0,
          prop_sweep_spans_equals_all_pairs/0, prop_grid_equals_shared_cells/0,
          prop_swept_cells_cover_the_move/0, prop_swept_contacts_share_a_cell/0,
-         prop_ccd_keeps_sphere_in_container/0, prop_position_is_advance/0]).
+         prop_ccd_keeps_sphere_in_container/0]).
 %% generators, for use from a shell: proper_gen:pick(rw_physics_prop:pair_case())
 -export([position/0, far_vec/0, vec/0, direction/0, quat/0, sphere/1, model/0, state/1, pair_case/0,
          pair_case/1, fixture_probe/0]).
@@ -853,22 +853,6 @@ prop_free_flight() ->
                      ?WHENFAIL(report("~p: ~p -> ~p, expected ~p", [Int, P, P1, rw_vec:madd(P, V, Dt)]),
                                bitwise({P1, V1, W1, Disp}, {rw_vec:madd(P, V, Dt), V, W, rw_vec:sub(P1, P)})
                                    andalso (W =:= undefined) =:= (Q1 =:= undefined))
-                 end))).
-
-%% position/4 and velocity_displacement/3 (what rw_dynamics sweeps after a
-%% bounce) are advance/5's position and free_displacement/2 bit for bit,
-%% for every integrator, with and without gravity and pseudo-velocity.
-prop_position_is_advance() ->
-    ?FORALL({M0, Int, Gravity, U}, {model(), oneof(rw_integrate:integrators()), oneof([undefined, velocity()]),
-                                    oneof([{0.0, 0.0, 0.0}, velocity()])},
-            ?FORALL(St, state(M0),
-                 ?SAFE(begin
-                     M = M0#model{gravity = Gravity, integrator = Int},
-                     #st{p = P, v = V, w = W} = St,
-                     #st{p = P1} = rw_integrate:advance(M, St, V, W, U),
-                     Got = {rw_integrate:position(M, P, V, U), rw_integrate:velocity_displacement(M, P, V)},
-                     Expected = {P1, rw_integrate:free_displacement(M, St)},
-                     ?WHENFAIL(report("~p: ~p, expected ~p", [M, Got, Expected]), bitwise(Got, Expected))
                  end))).
 
 %% respond/2 is the fold of the effects' additions in the order given

@@ -11,7 +11,7 @@
          island_equals_all_pairs/1,
          sweep_spheres_equals_all_pairs/1, sweep_spans_equals_all_pairs/1, grid_equals_shared_cells/1,
          swept_cells_cover_the_move/1, swept_contacts_share_a_cell/1, ccd_keeps_sphere_in_container/1,
-         position_is_advance/1, island_mutants_are_caught/1]).
+         island_mutants_are_caught/1]).
 
 %% Tests per property; the whole suite takes a few seconds.
 -define(NUMTESTS, 1000).
@@ -29,7 +29,7 @@ all() -> [pair_momentum, pair_angular_momentum, pair_energy, fixture_energy, res
           respond_is_ordered_fold, container_is_six_walls, fixture_box_skips_only_misses,
           fixture_then_pair_energy, fixtures_together_energy, island_equals_all_pairs, sweep_spheres_equals_all_pairs,
           sweep_spans_equals_all_pairs, grid_equals_shared_cells, swept_cells_cover_the_move,
-          swept_contacts_share_a_cell, ccd_keeps_sphere_in_container, position_is_advance, island_mutants_are_caught].
+          swept_contacts_share_a_cell, ccd_keeps_sphere_in_container, island_mutants_are_caught].
 
 end_per_testcase(_Case, _Config) ->
     proper:global_state_erase(),
@@ -58,7 +58,6 @@ grid_equals_shared_cells(_) -> check(grid_equals_shared_cells).
 swept_cells_cover_the_move(_) -> check(swept_cells_cover_the_move).
 swept_contacts_share_a_cell(_) -> check(swept_contacts_share_a_cell).
 ccd_keeps_sphere_in_container(_) -> check(ccd_keeps_sphere_in_container).
-position_is_advance(_) -> check(position_is_advance).
 
 %% The island property can fail where it matters: each mutation below of
 %% rw_island's validity rules (a neighbour list or a fixture list used when
