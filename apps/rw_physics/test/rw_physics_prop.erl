@@ -21,7 +21,7 @@
          prop_ccd_keeps_sphere_in_container/0]).
 %% generators, for use from a shell: proper_gen:pick(rw_physics_prop:pair_case())
 -export([position/0, far_vec/0, vec/0, direction/0, quat/0, sphere/1, model/0, state/1, pair_case/0,
-         pair_case/1, fixture_probe/0]).
+         pair_case/1, fixture_probe/0, island_case/0, spin_case/0]).
 
 -define(REL, 1.0e-9).
 
@@ -945,10 +945,16 @@ first_difference([X | A], [Y | B], K) ->
     end;
 first_difference(_, _, K) -> {K, length_differs}.
 
-%% {Model, Spheres, States, Fixtures, External, Substeps}: 1-12 spheres
-%% (idx 10, 12, 14, ...) packed in a cluster at some spacing (overlapping,
-%% touching or apart), moving slowly, fast, or apart from each other.
-island_case() ->
+%% {Model, Spheres, States, Fixtures, External, Substeps}: mostly a
+%% cluster (cluster_case/0); now and then one sphere with CCD that spins
+%% fast enough for a floor's friction to throw it farther than its own
+%% free move, towards a wall (spin_case/0).
+island_case() -> frequency([{4, cluster_case()}, {1, spin_case()}]).
+
+%% 1-12 spheres (idx 10, 12, 14, ...) packed in a cluster at some spacing
+%% (overlapping, touching or apart), moving slowly, fast, or apart from
+%% each other.
+cluster_case() ->
     ?LET({M0, Ccd, Gravity, N, Centre, Spacing, Speed, Fixtures, Steps},
          {model(), boolean(), boolean(), range(1, 12), position(), oneof([0.7, 0.95, 1.0, 1.3, 3.0]),
           oneof([0.0, 0.1, 2.0, 50.0]), island_fixtures(), oneof([10, 40])},
@@ -980,6 +986,28 @@ island_case() ->
                               || {K, Dv} <- lists:ukeysort(1, Pushes)],
                   {M, Spheres, States, Placed, External, Steps}
               end)).
+
+%% A sphere of radius R above a floor, falling 0.35-0.5 R within the
+%% substep and spinning at four to eight times that speed at its rim,
+%% with a wall 1.5-1.65 R to the side its spin throws it to: after the
+%% bounce it may travel farther than its free move, up to twice that
+%% (rw_dynamics' bound), and reach the wall, which a fixture list that
+%% allowed only its free move would miss (in about a quarter of these
+%% cases).
+spin_case() ->
+    ?LET({M0, E, Centre, R, Fall, Aside, Spin, Height, Wall, Side, Gravity},
+         {model(true, float(0.7, 1.5)), float(0.5, 1.0), position(), float(0.05, 0.3), float(0.35, 0.5),
+          float(0.0, 0.3), float(4.0, 8.0), float(0.0, 0.5), float(1.5, 1.65), oneof([1.0, -1.0]), boolean()},
+         begin
+             M = M0#model{ccd = true, dt = 0.001, restitution = E,
+                          gravity = case Gravity of true -> {0.0, -9.81, 0.0}; false -> undefined end},
+             Speed = Fall * R / 0.001,
+             St = #st{p = rw_vec:add(Centre, {0.0, R + Height * Fall * R, 0.0}), v = {Side * Aside * Speed, -Speed, 0.0},
+                      q = rw_quat:identity(), w = {0.0, 0.0, -Side * Spin * Speed / R}},
+             Fixtures = [rw_shape:fixture(1, <<"1">>, shift({plane, {0.0, 1.0, 0.0}, 0.0}, Centre)),
+                         rw_shape:fixture(3, <<"3">>, shift({plane, {-Side, 0.0, 0.0}, -Wall * R}, Centre))],
+             {M, [rw_shape:sphere(10, <<"10">>, R, 1.0)], [St], Fixtures, [], 3}
+         end).
 
 %% Fixtures near the cluster (in the cluster's frame).
 island_fixtures() ->

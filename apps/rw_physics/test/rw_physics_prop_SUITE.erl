@@ -121,6 +121,9 @@ island_mutations() ->
      %% without CCD moves are compared squared: against the limit itself,
      %% not squared, members may move several times half the skin
      {unsquared_limit, "Anchors, Drift, Limit * Limit)", "Anchors, Drift, Limit)"},
+     %% with CCD, a member's reach only its free move, not the twice that
+     %% a leg after a bounce may take it (a fast spin thrown by a floor)
+     {ccd_reach_once, "vscale(D, 2.0)", "vscale(D, 1.0)"},
      %% fixtures listed only when within a radius of a member, without the
      %% half skin it may still move
      {no_fixture_margin, "R + 0.5 * Reach)", "R)"},
