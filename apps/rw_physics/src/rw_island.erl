@@ -19,7 +19,7 @@
 %% Fixtures are listed per member the same way: those within its radius
 %% plus half a skin (one radius) of where it was when the list was built,
 %% valid while it stays within half a skin of there (absolutely: fixtures
-%% do not move), with CCD counting twice its displacement (reach/1). A
+%% do not move), with CCD counting twice its displacement (?CCD_REACH). A
 %% member far from every post, wall and floor of a scene then tests none of
 %% them: a sphere in free flight in a container checks its move from the
 %% anchor, not the six walls, at each substep.
@@ -28,6 +28,11 @@
 -export([new/3, size/1, posts/3, step/3, post/3, advance/3, free_zone/1, touches_no_fixture/4]).
 -export_type([island/0, external/0]).
 -include("rw_vec_inline.hrl").
+
+%% How far a member's centre may get from where it starts the substep, in
+%% free displacements, with CCD: after a bounce rw_dynamics sweeps the rest
+%% of its path only while it stays within twice its free displacement.
+-define(CCD_REACH, 2.0).
 
 %% The effect of a contact with a body outside the island, for the member
 %% whose idx is given, under its canonical key.
@@ -224,7 +229,7 @@ displacements(M, States) -> list_to_tuple([rw_integrate:free_displacement(M, St)
 fixtures_near(#island{fixtures = []} = I, _States, _Disps) -> I;
 fixtures_near(#island{fanchors = undefined} = I, States, Disps) -> fixtures_fresh(I, States, Disps);
 fixtures_near(#island{fanchors = Anchors, flimit = Limit} = I, States, Disps) ->
-    case within(States, Anchors, vzero(), reach(Disps), vzero(), Limit) of
+    case within(States, Anchors, vzero(), Disps, vzero(), ?CCD_REACH, Limit) of
         true -> I;
         false -> fixtures_fresh(I, States, Disps)
     end.
@@ -237,7 +242,7 @@ fixtures_fresh(#island{spheres = Spheres, fixtures = Fixtures} = I, States, Disp
     Reach = lists:max([R || #sphere{radius = R} <- tuple_to_list(Spheres)]),
     Scale = lists:max([rw_vec:max_abs(P) || P <- tuple_to_list(Anchors)]) + 2.0 * Reach,
     Limit = 0.5 * Reach - 1.0e-9 * Scale,
-    case within(States, Anchors, vzero(), reach(Disps), vzero(), Limit) of
+    case within(States, Anchors, vzero(), Disps, vzero(), ?CCD_REACH, Limit) of
         true ->
             Near = list_to_tuple([[F || F <- Fixtures, may_touch(F, element(K, Anchors), R + 0.5 * Reach)]
                                   || {K, #sphere{radius = R}} <- lists:zip(lists:seq(1, tuple_size(Spheres)),
@@ -246,12 +251,6 @@ fixtures_fresh(#island{spheres = Spheres, fixtures = Fixtures} = I, States, Disp
         false ->
             I#island{near = list_to_tuple([Fixtures || _ <- tuple_to_list(Spheres)]), fanchors = undefined}
     end.
-
-%% How far a member's centre may get from where it starts the substep: with
-%% CCD, twice its free displacement (after a bounce rw_dynamics sweeps the
-%% rest of its path only while it stays within that reach).
-reach(undefined) -> undefined;
-reach(Disps) -> list_to_tuple([vscale(D, 2.0) || D <- tuple_to_list(Disps)]).
 
 %% A fixture may touch a sphere whose centre stays within Reach of P: the
 %% narrowphase rejects a sphere farther than its radius outside the box, on
@@ -305,20 +304,20 @@ valid(States, Anchors, Disps, Limit) ->
                 undefined -> undefined;
                 _ -> element(1, Disps)
             end,
-    within(States, Anchors, vsub(P1, element(1, Anchors)), Disps, Disp1, Limit).
+    within(States, Anchors, vsub(P1, element(1, Anchors)), Disps, Disp1, 1.0, Limit).
 
 %% Every member moved less than Limit from its anchor, less Drift, plus
-%% (with CCD) its displacement less Disp0: the test of both lists, the
-%% fixtures' with no drift and no reference displacement (fixtures do not
-%% move). Without CCD it compares squared distances: no square root per
+%% (with CCD) Reach times its displacement less Disp0: the test of both
+%% lists, the fixtures' with no drift and no reference displacement
+%% (fixtures do not move) and ?CCD_REACH. Without CCD it compares squared distances: no square root per
 %% member and substep; a list judged valid either way has its margin, so
 %% a decision that rounding could tip only rebuilds a list one substep
 %% early or late.
-within(_States, _Anchors, _Drift, undefined, _Disp0, Limit) when Limit =< 0.0 -> false;
-within(States, Anchors, Drift, undefined, _Disp0, Limit) ->
+within(_States, _Anchors, _Drift, undefined, _Disp0, _Reach, Limit) when Limit =< 0.0 -> false;
+within(States, Anchors, Drift, undefined, _Disp0, _Reach, Limit) ->
     within2(tuple_size(States), States, Anchors, Drift, Limit * Limit);
-within(States, Anchors, Drift, Disps, Disp0, Limit) ->
-    within(tuple_size(States), States, Anchors, Drift, Disps, Disp0, Limit).
+within(States, Anchors, Drift, Disps, Disp0, Reach, Limit) ->
+    within(tuple_size(States), States, Anchors, Drift, Disps, Disp0, Reach, Limit).
 
 within2(0, _States, _Anchors, _Drift, _Limit2) -> true;
 within2(K, States, Anchors, Drift, Limit2) ->
@@ -328,12 +327,12 @@ within2(K, States, Anchors, Drift, Limit2) ->
         false -> false
     end.
 
-within(0, _States, _Anchors, _Drift, _Disps, _Disp0, _Limit) -> true;
-within(K, States, Anchors, Drift, Disps, Disp0, Limit) ->
+within(0, _States, _Anchors, _Drift, _Disps, _Disp0, _Reach, _Limit) -> true;
+within(K, States, Anchors, Drift, Disps, Disp0, Reach, Limit) ->
     #st{p = P} = element(K, States),
     Moved = vlen(vsub(vsub(P, element(K, Anchors)), Drift)),
-    case Moved + vlen(vsub(element(K, Disps), Disp0)) =< Limit of
-        true -> within(K - 1, States, Anchors, Drift, Disps, Disp0, Limit);
+    case Moved + Reach * vlen(vsub(element(K, Disps), Disp0)) =< Limit of
+        true -> within(K - 1, States, Anchors, Drift, Disps, Disp0, Reach, Limit);
         false -> false
     end.
 

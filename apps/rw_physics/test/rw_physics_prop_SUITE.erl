@@ -117,13 +117,13 @@ island_mutations() ->
      {full_skin, "Limit = 0.5 * Skin - 1.0e-9 * Scale", "Limit = Skin - 1.0e-9 * Scale"},
      %% with CCD, a member's displacement over the substep no longer counts
      %% against the list's margin
-     {no_ccd_spread, "Moved + vlen(vsub(element(K, Disps), Disp0)) =< Limit", "Moved =< Limit"},
+     {no_ccd_spread, "Moved + Reach * vlen(vsub(element(K, Disps), Disp0)) =< Limit", "Moved =< Limit"},
      %% without CCD moves are compared squared: against the limit itself,
      %% not squared, members may move several times half the skin
      {unsquared_limit, "Anchors, Drift, Limit * Limit)", "Anchors, Drift, Limit)"},
      %% with CCD, a member's reach only its free move, not the twice that
      %% a leg after a bounce may take it (a fast spin thrown by a floor)
-     {ccd_reach_once, "vscale(D, 2.0)", "vscale(D, 1.0)"},
+     {ccd_reach_once, "-define(CCD_REACH, 2.0).", "-define(CCD_REACH, 1.0)."},
      %% fixtures listed only when within a radius of a member, without the
      %% half skin it may still move
      {no_fixture_margin, "R + 0.5 * Reach)", "R)"},
