@@ -64,19 +64,13 @@ fixture_effects(M, #sphere{radius = R} = S, #st{p = P} = St, Fixtures) ->
     case contacts(P, Disp, R, Fixtures) of
         [] -> [];
         Contacts ->
-            case touching(Contacts, [], []) of
-                {Now, []} -> in_turn(M, S, St, Now);
-                {Now, Later} ->
+            case lists:partition(fun({_, #contact{toi = Toi}}) -> Toi > 0.0 end, Contacts) of
+                {[], Now} -> in_turn(M, S, St, Now);
+                {Later, Now} ->
                     Touched = in_turn(M, S, St, Now),
                     impacts(M, S, St, after_fixtures(St, Touched), Fixtures, Touched, 0.0, Later, 2.0 * vlen(Disp), 1)
             end
     end.
-
-%% The contacts touching at the start of the substep, and those along the
-%% path, each in the order given.
-touching([], Now, Later) -> {lists:reverse(Now), lists:reverse(Later)};
-touching([{_, #contact{toi = Toi}} = KC | Rest], Now, Later) when Toi > 0.0 -> touching(Rest, Now, [KC | Later]);
-touching([KC | Rest], Now, Later) -> touching(Rest, [KC | Now], Later).
 
 contacts(P, Disp, R, Fixtures) ->
     [{{FIdx, Feature}, C} || #fixture{idx = FIdx} = Fixture <- Fixtures,

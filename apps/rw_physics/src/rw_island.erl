@@ -307,17 +307,17 @@ valid(States, Anchors, Disps, Limit) ->
     within(States, Anchors, vsub(P1, element(1, Anchors)), Disps, Disp1, 1.0, Limit).
 
 %% Every member moved less than Limit from its anchor, less Drift, plus
-%% (with CCD) Reach times its displacement less Disp0: the test of both
-%% lists, the fixtures' with no drift and no reference displacement
-%% (fixtures do not move) and ?CCD_REACH. Without CCD it compares squared distances: no square root per
-%% member and substep; a list judged valid either way has its margin, so
-%% a decision that rounding could tip only rebuilds a list one substep
-%% early or late.
-within(_States, _Anchors, _Drift, undefined, _Disp0, _Reach, Limit) when Limit =< 0.0 -> false;
-within(States, Anchors, Drift, undefined, _Disp0, _Reach, Limit) ->
+%% (with CCD) Times its displacement less Disp0: the test of both lists,
+%% the fixtures' with no drift, no reference displacement (fixtures do not
+%% move) and ?CCD_REACH times. Without CCD it compares squared distances:
+%% no square root per member and substep; a list judged valid either way
+%% has its margin, so a decision that rounding could tip only rebuilds a
+%% list one substep early or late.
+within(_States, _Anchors, _Drift, undefined, _Disp0, _Times, Limit) when Limit =< 0.0 -> false;
+within(States, Anchors, Drift, undefined, _Disp0, _Times, Limit) ->
     within2(tuple_size(States), States, Anchors, Drift, Limit * Limit);
-within(States, Anchors, Drift, Disps, Disp0, Reach, Limit) ->
-    within(tuple_size(States), States, Anchors, Drift, Disps, Disp0, Reach, Limit).
+within(States, Anchors, Drift, Disps, Disp0, Times, Limit) ->
+    within(tuple_size(States), States, Anchors, Drift, Disps, Disp0, Times, Limit).
 
 within2(0, _States, _Anchors, _Drift, _Limit2) -> true;
 within2(K, States, Anchors, Drift, Limit2) ->
@@ -327,12 +327,12 @@ within2(K, States, Anchors, Drift, Limit2) ->
         false -> false
     end.
 
-within(0, _States, _Anchors, _Drift, _Disps, _Disp0, _Reach, _Limit) -> true;
-within(K, States, Anchors, Drift, Disps, Disp0, Reach, Limit) ->
+within(0, _States, _Anchors, _Drift, _Disps, _Disp0, _Times, _Limit) -> true;
+within(K, States, Anchors, Drift, Disps, Disp0, Times, Limit) ->
     #st{p = P} = element(K, States),
     Moved = vlen(vsub(vsub(P, element(K, Anchors)), Drift)),
-    case Moved + Reach * vlen(vsub(element(K, Disps), Disp0)) =< Limit of
-        true -> within(K - 1, States, Anchors, Drift, Disps, Disp0, Reach, Limit);
+    case Moved + Times * vlen(vsub(element(K, Disps), Disp0)) =< Limit of
+        true -> within(K - 1, States, Anchors, Drift, Disps, Disp0, Times, Limit);
         false -> false
     end.
 

@@ -117,7 +117,7 @@ island_mutations() ->
      {full_skin, "Limit = 0.5 * Skin - 1.0e-9 * Scale", "Limit = Skin - 1.0e-9 * Scale"},
      %% with CCD, a member's displacement over the substep no longer counts
      %% against the list's margin
-     {no_ccd_spread, "Moved + Reach * vlen(vsub(element(K, Disps), Disp0)) =< Limit", "Moved =< Limit"},
+     {no_ccd_spread, "Moved + Times * vlen(vsub(element(K, Disps), Disp0)) =< Limit", "Moved =< Limit"},
      %% without CCD moves are compared squared: against the limit itself,
      %% not squared, members may move several times half the skin
      {unsquared_limit, "Anchors, Drift, Limit * Limit)", "Anchors, Drift, Limit)"},
