@@ -54,9 +54,12 @@
     %% GVT (slot 1), which bodies read when they step, and the next
     %% checkpoint's sync point (slot 2, 0 for none: rw_commits:commit/4)
     gvt_now :: atomics:atomics_ref() | undefined,
-    %% nobody reads this run's frames: bodies commit their records only
-    %% where the engine reads them (rw_commits:commit/4)
-    sparse_records = false :: boolean(),
+    %% the records bodies commit (rw_commits:commit/4): whole ones, when
+    %% someone reads this run's frames; else, where the regroup plan reads
+    %% every body's, slim ones (its motion) but whole ones at the announced
+    %% checkpoint's sync point and at the end; else only where the engine
+    %% reads them (sparse)
+    records_kept = whole :: whole | slim | sparse,
     %% contact groups (rw_regroup): the most bodies in one group, and how
     %% groups are planned (eager: tests only)
     group_max = 1 :: pos_integer(),

@@ -26,6 +26,10 @@
 %% A packed record's velocities after the responses differ from those
 %% before.
 -define(RESPONDED, 1).
+%% A slim record: the position and post-response velocity only, what the
+%% regroup plan reads (motions_at/3), packed as a whole record without
+%% rotation packs them.
+-define(SLIM, 2).
 
 %% The record of body Idx (id Id) at sync point T: position P, velocities
 %% V and W after the responses at T, orientation Q, velocities V0 and W0
@@ -63,25 +67,37 @@ unpack({_, Id, <<Flags, PX:64/float, PY:64/float, PZ:64/float, VX:64/float, VY:6
         {?RESPONDED, <<AX:64/float, AY:64/float, AZ:64/float>>} -> {{Id, P, V, undefined, undefined}, {{AX, AY, AZ}, undefined}}
     end.
 
-%% Commit the records of an entity's members at sync point T. With sparse
-%% records (#sim.sparse_records: nobody reads the frames) they are kept
-%% only where the engine reads them: at the end, at the next checkpoint's
-%% sync point (checkpoint_at/2) and where the regroup plan may read them
-%% (Planned, as the entity knows: rw_entity). Inserting every body's record
-%% at every sync point into the ordered table, and deleting it again, is a
-%% good part of a gas's work (doc/performance.md).
+%% Commit the records of an entity's members at sync point T. When nobody
+%% reads the frames (#sim.records_kept) they are whole only at the end and
+%% at the next checkpoint's sync point (checkpoint_at/2): elsewhere, with
+%% sparse records, they are kept only where the regroup plan may read them
+%% (Planned, as the entity knows: rw_entity), and slim ones are kept where
+%% it reads every body's. Inserting every body's record at every sync point
+%% into the ordered table, and deleting it again, is a good part of a
+%% gas's work (doc/performance.md).
 -spec commit(#sim{}, non_neg_integer(), [record()], boolean()) -> ok.
 commit(#sim{records = Records, counts = Counts, n = N, gvt = Gvt} = Sim, T, Rows, Planned) ->
-    _ = is_kept(Sim, T, Planned) andalso ets:insert(Records, Rows),
+    _ = case Sim#sim.records_kept of
+            whole -> ets:insert(Records, Rows);
+            slim -> ets:insert(Records, case is_whole(Sim, T) of
+                                            true -> Rows;
+                                            false -> [slim(Row) || Row <- Rows]
+                                        end);
+            sparse -> (Planned orelse is_whole(Sim, T)) andalso ets:insert(Records, Rows)
+        end,
     case ets:update_counter(Counts, T, {2, length(Rows)}, {T, 0, 0}) of
         N -> rw_trace:send(Gvt, {complete, T});
         _ -> ok
     end.
 
-is_kept(#sim{sparse_records = false}, _T, _Planned) -> true;
-is_kept(_Sim, _T, true) -> true;
-is_kept(#sim{end_t = End}, End, _Planned) -> true;
-is_kept(#sim{gvt_now = Now}, T, false) -> atomics:get(Now, 2) =:= T.
+%% Whole records at T when nobody reads the frames: at the end and at the
+%% announced checkpoint's sync point.
+is_whole(#sim{end_t = End}, End) -> true;
+is_whole(#sim{gvt_now = Now}, T) -> atomics:get(Now, 2) =:= T.
+
+slim({Key, Id, <<_, Motion:48/binary, _/binary>>}) -> {Key, Id, <<?SLIM, Motion/binary>>};
+slim({Key, Id, {{PX, PY, PZ}, {VX, VY, VZ}, _Q, _W, _V0, _W0}}) ->
+    {Key, Id, <<?SLIM, PX:64/float, PY:64/float, PZ:64/float, VX:64/float, VY:64/float, VZ:64/float>>}.
 
 %% Keep the records of an entity's members at sync point T, committed
 %% before: the regroup plan is to read them after all.
@@ -135,9 +151,12 @@ forget(#sim{counts = Counts}, T) ->
     ok.
 
 %% The records committed at sync point T, in idx order: one per body once
-%% GVT has passed T.
+%% GVT has passed T, unless they are slim (none is then a frame).
 -spec select_at(non_neg_integer(), ets:tid()) -> [rw_reference:body_frame()].
-select_at(T, Records) -> [element(1, unpack(R)) || R <- records_at(T, Records)].
+select_at(T, Records) -> [element(1, unpack(R)) || R <- records_at(T, Records), not is_slim(R)].
+
+is_slim({_, _, <<?SLIM, _/binary>>}) -> true;
+is_slim(_) -> false.
 
 %% The positions and post-response velocities of the bodies Idxs (all:
 %% every body) at sync point T, once GVT has passed T: {Idx, P, V} in idx

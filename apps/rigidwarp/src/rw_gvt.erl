@@ -278,15 +278,15 @@ finish(T, #s{sim = #sim{records = Records, ring = Ring, sync = Cal} = Sim} = S) 
 
 %% Every checkpoint_ms of wall time, a frame is also a checkpoint: the
 %% whole state of every body, from which the run restarts after a fault.
-%% With sparse records the bodies keep every record only at the frame
-%% announced as the next checkpoint's, the first one at a sync point that
-%% no body can have committed yet (past LVT_ub), so a checkpoint comes
-%% about a stride later.
-checkpoint(T, Ms, #s{sim = #sim{sparse_records = true, records = Records}, checkpoint_at = T} = S) ->
+%% When nobody reads the frames the bodies keep every record whole only at
+%% the frame announced as the next checkpoint's, the first one at a sync
+%% point that no body can have committed yet (past LVT_ub), so a
+%% checkpoint comes about a stride later.
+checkpoint(T, Ms, #s{sim = #sim{records_kept = Kept, records = Records}, checkpoint_at = T} = S) when Kept =/= whole ->
     ok = notify(S#s.run, {rw_checkpoint, self(), {checkpoint, T, Ms, rw_commits:states_at(T, Records)}}),
     S#s{checkpoint_due = erlang:monotonic_time(millisecond) + S#s.checkpoint_ms, checkpoint_at = none};
-checkpoint(_T, _Ms, #s{sim = #sim{sparse_records = true, end_t = End, sync = Cal, scene = #scene{stride = Stride}} = Sim,
-                       checkpoint_at = none, checkpoint_due = Due, gvt = G} = S) ->
+checkpoint(_T, _Ms, #s{sim = #sim{records_kept = Kept, end_t = End, sync = Cal, scene = #scene{stride = Stride}} = Sim,
+                       checkpoint_at = none, checkpoint_due = Due, gvt = G} = S) when Kept =/= whole ->
     At = rw_sync:sync_frame_after(G + Stride, Cal),
     case At < End andalso erlang:monotonic_time(millisecond) >= Due of
         true ->
@@ -295,7 +295,7 @@ checkpoint(_T, _Ms, #s{sim = #sim{sparse_records = true, end_t = End, sync = Cal
         false ->
             S
     end;
-checkpoint(_T, _Ms, #s{sim = #sim{sparse_records = true}} = S) -> S;
+checkpoint(_T, _Ms, #s{sim = #sim{records_kept = Kept}} = S) when Kept =/= whole -> S;
 checkpoint(T, Ms, #s{sim = #sim{records = Records, end_t = End}, checkpoint_due = Due} = S) when T < End ->
     Now = erlang:monotonic_time(millisecond),
     case Now >= Due of

@@ -51,7 +51,7 @@ motions_and_frames_at_test() ->
 %% may, at the announced checkpoint's sync point and at the end; a run whose
 %% frames someone reads keeps them all.
 sparse_commits_test() ->
-    Sim = commits_sim(true),
+    Sim = commits_sim(sparse),
     ok = rw_commits:checkpoint_at(Sim, 30),
     Row = fun(T, I) -> rw_commits:record(T, I, integer_to_binary(I), {1.0, 2.0, 3.0}, {0.0, 0.0, 0.0}, undefined, undefined,
                                          {{0.0, 0.0, 0.0}, undefined}) end,
@@ -66,11 +66,35 @@ sparse_commits_test() ->
     %% kept after all, once the plan is to read them
     ok = rw_commits:keep(Sim, [Row(40, 1)]),
     ?assertMatch([{<<"1">>, _, _, _, _}], rw_commits:select_at(40, Sim#sim.records)),
-    Every = commits_sim(false),
+    Every = commits_sim(whole),
     _ = [ok = rw_commits:commit(Every, T, [Row(T, 1)], false) || T <- [10, 20]],
     ?assertEqual([1, 1], [length(rw_commits:select_at(T, Every#sim.records)) || T <- [10, 20]]).
 
-commits_sim(Sparse) ->
+%% With slim records a commit keeps every member's record, whole at the
+%% announced checkpoint's sync point and at the end, elsewhere only the
+%% motion the regroup plan reads: bit for bit that of the whole record,
+%% with and without rotation, and never taken for a frame.
+slim_commits_test() ->
+    Sim = commits_sim(slim),
+    ok = rw_commits:checkpoint_at(Sim, 30),
+    Row = fun(T, 1) -> rw_commits:record(T, 1, <<"1">>, {1.0, -0.0, 3.0e300}, {0.0, -2.5, 1.0e-300}, undefined, undefined,
+                                         {{0.0, 2.5, 1.0e-300}, undefined});
+             (T, 2) -> rw_commits:record(T, 2, <<"2">>, {-0.0, 2.0, 3.0}, {-0.0, 0.5, 7.0}, {{0.5, -0.5, 0.5}, -0.5},
+                                         {0.0, -3.25, 7.0}, {{1.0, 0.5, 7.0}, {0.0, 0.0, 7.0}})
+          end,
+    _ = [ok = rw_commits:commit(Sim, T, [Row(T, 1), Row(T, 2)], false) || T <- [10, 30, 50]],
+    Records = Sim#sim.records,
+    Motions = [{1, {1.0, -0.0, 3.0e300}, {0.0, -2.5, 1.0e-300}}, {2, {-0.0, 2.0, 3.0}, {-0.0, 0.5, 7.0}}],
+    _ = [?assertBitwise(Motions, rw_commits:motions_at(T, all, Records)) || T <- [10, 30, 50]],
+    ?assertBitwise(Motions, rw_commits:motions_at(10, [1, 2], Records)),
+    ?assertEqual([[], 2, 2], [case rw_commits:select_at(T, Records) of [] -> []; L -> length(L) end || T <- [10, 30, 50]]),
+    %% (49 bytes: a heap binary)
+    ?assertEqual([49, 49], [byte_size(Bin) || {_, _, Bin} <- ets:lookup(Records, {10, 1}) ++ ets:lookup(Records, {10, 2})]),
+    ?assertBitwise([rw_commits:unpack(Row(30, I)) || I <- [1, 2]], [rw_commits:unpack(R) || R <- ets:tab2list(Records),
+                                                                                           element(1, element(1, R)) =:= 30]),
+    ?assertEqual([{2, 0} || _ <- [10, 30, 50]], [rw_commits:count(Sim, T) || T <- [10, 30, 50]]).
+
+commits_sim(Kept) ->
     Now = atomics:new(2, [{signed, true}]),
     #sim{records = ets:new(records, [ordered_set, public]), counts = ets:new(counts, [set, public]), n = 3, end_t = 50,
-         gvt = self(), gvt_now = Now, sparse_records = Sparse}.
+         gvt = self(), gvt_now = Now, records_kept = Kept}.
