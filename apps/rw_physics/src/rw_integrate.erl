@@ -38,5 +38,8 @@ free_displacement(M, #st{p = P, v = V, w = W} = St) ->
     #st{p = P1} = advance(M, St, V, W, vzero()),
     vsub(P1, P).
 
-add_nonzero(V, {0.0, 0.0, 0.0}) -> V;
+%% V + U, or V itself where U is zero (-0.0 too, as a match of 0.0 takes
+%% it). Guards rather than a literal {0.0, 0.0, 0.0} in the head: matching
+%% a literal tuple calls the runtime's general term comparison.
+add_nonzero(V, {UX, UY, UZ}) when UX == 0.0, UY == 0.0, UZ == 0.0 -> V;
 add_nonzero(V, U) -> vadd(V, U).

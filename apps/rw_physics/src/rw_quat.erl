@@ -27,8 +27,10 @@ norm({V, W} = Q) when is_float(W) ->
 %% seconds: q + dt/2 * (omega, 0) * q, renormalised.
 -spec integrate(quat(), rw_vec:vec(), float()) -> quat().
 %% (called once per body and substep: mul/2 and norm/1 written out, the
-%% same operations in the same order, so the result is bit for bit theirs)
-integrate(Q, {0.0, 0.0, 0.0}, _Dt) -> Q;
+%% same operations in the same order, so the result is bit for bit theirs;
+%% no spin, -0.0 too, leaves Q as it is, tested by guards rather than by
+%% matching a literal tuple, which calls the runtime's term comparison)
+integrate(Q, {OX, OY, OZ}, _Dt) when OX == 0.0, OY == 0.0, OZ == 0.0 -> Q;
 integrate({{X, Y, Z}, W}, {OX, OY, OZ}, Dt)
   when is_float(X), is_float(Y), is_float(Z), is_float(W), is_float(OX), is_float(OY), is_float(OZ),
        is_float(Dt) ->
