@@ -282,26 +282,27 @@ finish(T, #s{sim = #sim{records = Records, ring = Ring, sync = Cal} = Sim} = S) 
 %% the frame announced as the next checkpoint's, the first one at a sync
 %% point that no body can have committed yet (past LVT_ub), so a
 %% checkpoint comes about a stride later.
-checkpoint(T, Ms, #s{sim = #sim{records_kept = Kept, records = Records}, checkpoint_at = T} = S) when Kept =/= whole ->
-    ok = notify(S#s.run, {rw_checkpoint, self(), {checkpoint, T, Ms, rw_commits:states_at(T, Records)}}),
-    S#s{checkpoint_due = erlang:monotonic_time(millisecond) + S#s.checkpoint_ms, checkpoint_at = none};
-checkpoint(_T, _Ms, #s{sim = #sim{records_kept = Kept, end_t = End, sync = Cal, scene = #scene{stride = Stride}} = Sim,
-                       checkpoint_at = none, checkpoint_due = Due, gvt = G} = S) when Kept =/= whole ->
-    At = rw_sync:sync_frame_after(G + Stride, Cal),
-    case At < End andalso erlang:monotonic_time(millisecond) >= Due of
-        true ->
-            ok = rw_commits:checkpoint_at(Sim, At),
-            S#s{checkpoint_at = At};
-        false ->
-            S
-    end;
-checkpoint(_T, _Ms, #s{sim = #sim{records_kept = Kept}} = S) when Kept =/= whole -> S;
-checkpoint(T, Ms, #s{sim = #sim{records = Records, end_t = End}, checkpoint_due = Due} = S) when T < End ->
+checkpoint(T, Ms, #s{sim = #sim{records_kept = whole, records = Records, end_t = End}, checkpoint_due = Due} = S)
+  when T < End ->
     Now = erlang:monotonic_time(millisecond),
     case Now >= Due of
         true ->
             ok = notify(S#s.run, {rw_checkpoint, self(), {checkpoint, T, Ms, rw_commits:states_at(T, Records)}}),
             S#s{checkpoint_due = Now + S#s.checkpoint_ms};
+        false ->
+            S
+    end;
+checkpoint(_T, _Ms, #s{sim = #sim{records_kept = whole}} = S) -> S;
+checkpoint(T, Ms, #s{sim = #sim{records = Records}, checkpoint_at = T} = S) ->
+    ok = notify(S#s.run, {rw_checkpoint, self(), {checkpoint, T, Ms, rw_commits:states_at(T, Records)}}),
+    S#s{checkpoint_due = erlang:monotonic_time(millisecond) + S#s.checkpoint_ms, checkpoint_at = none};
+checkpoint(_T, _Ms, #s{sim = #sim{end_t = End, sync = Cal, scene = #scene{stride = Stride}} = Sim,
+                       checkpoint_at = none, checkpoint_due = Due, gvt = G} = S) ->
+    At = rw_sync:sync_frame_after(G + Stride, Cal),
+    case At < End andalso erlang:monotonic_time(millisecond) >= Due of
+        true ->
+            ok = rw_commits:checkpoint_at(Sim, At),
+            S#s{checkpoint_at = At};
         false ->
             S
     end;

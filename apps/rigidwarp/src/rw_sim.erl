@@ -54,7 +54,7 @@ new(#scene{spheres = Spheres, duration = End, frame = Frame, stride = Stride, st
 %% and of bodies that met only; slim ones where it reads every body's
 %% motion (as rw_gvt plans: landing under gravity). A whole record with
 %% rotation is a tuple of six vectors, copied into the ordered table and
-%% out again: Cylinders 500 ran 1.08 times as fast with slim ones.
+%% out again: Cylinders 500 ran 1.05 times as fast with slim ones.
 records_kept(#scene{model = #model{gravity = Gravity}}, Opts) ->
     case maps:get(read_frames, Opts, true) of
         true -> whole;
