@@ -1,7 +1,8 @@
 %% One simulation over several Erlang nodes: its frames equal the
 %% reference's bit for bit on 1, 2 and 3 nodes (contact-heavy scenes and
-%% random ones), a node lost mid-run costs nothing, and the peer nodes a
-%% run starts are gone when it ends, however it ends.
+%% random ones), a node lost mid-run costs nothing, the peer nodes a run
+%% starts are gone when it ends, however it ends, and every node runs the
+%% engine's C loops.
 %%
 %% Most cases run over two peer nodes the suite starts once (a run given
 %% node names connects to them and loads the engine there); the cases of
@@ -13,13 +14,13 @@
 -include_lib("rigidwarp/include/rigidwarp.hrl").
 -include("rw_test.hrl").
 -export([all/0, suite/0, init_per_suite/1, end_per_suite/1]).
--export([every_scenario_equal/1, contact_scenes_equal/1, random_scenes_equal/1, piles_regroup_across_batches/1, own_peers_equal_and_stopped/1, node_killed_mid_run/1,
+-export([peers_run_the_c_loops/1, every_scenario_equal/1, contact_scenes_equal/1, random_scenes_equal/1, piles_regroup_across_batches/1, own_peers_equal_and_stopped/1, node_killed_mid_run/1,
          node_stopped_mid_run/1, bodies_move_to_the_node_of_their_space/1, peers_stopped_however_the_run_ends/1, cross_node_traffic_is_counted/1,
          bad_nodes_are_refused/1, watchdog_names_stuck_body_elsewhere/1]).
 
 suite() -> [{timetrap, {minutes, 10}}].
 
-all() -> [every_scenario_equal, contact_scenes_equal, random_scenes_equal, piles_regroup_across_batches, own_peers_equal_and_stopped, node_killed_mid_run,
+all() -> [peers_run_the_c_loops, every_scenario_equal, contact_scenes_equal, random_scenes_equal, piles_regroup_across_batches, own_peers_equal_and_stopped, node_killed_mid_run,
           node_stopped_mid_run, bodies_move_to_the_node_of_their_space, peers_stopped_however_the_run_ends, cross_node_traffic_is_counted,
           bad_nodes_are_refused, watchdog_names_stuck_body_elsewhere].
 
@@ -97,6 +98,19 @@ every_scenario_equal(_Config) ->
                     end || Nodes <- [[A], [A, B]]]
                end || F <- Files],
               {comment, io_lib:format("~b scenarios x 2 and 3 nodes", [length(Files)])}
+      end).
+
+%% The nodes a run loads the engine on load its C loops too (rw_native),
+%% from a copy that is gone once they have.
+peers_run_the_c_loops(_Config) ->
+    ?assert(rw_native:loaded()),
+    with_peers(
+      fun(Peers) ->
+              [begin
+                   ?assert(erpc:call(Peer, rw_native, loaded, [])),
+                   ?assertEqual(false, erpc:call(Peer, os, getenv, [rw_native:library_variable()]))
+               end || Peer <- Peers],
+              ok
       end).
 
 %% Every contact-heavy scene on 1, 2 and 3 nodes: the reference's frames.

@@ -20,7 +20,7 @@
 %% The members' states after T up to Last (per member, rw_states:packed()
 %% of one state per substep), the sync points passed on the way, and the
 %% island with its neighbour list. A body alone flies free through
-%% flight/25 (with CCD it is stepped substep by substep, its states kept
+%% flight/26 (with CCD it is stepped substep by substep, its states kept
 %% in a list and packed at the end: a step of at most a stride); a group
 %% appends each member's states to a binary as it computes them, so that
 %% the states of a long step are never on the heap for the garbage
@@ -33,7 +33,7 @@ run(T, {St}, Last, {#model{ccd = false, rotation = Rot}, _, Base, TL, Cal} = Ctx
     Busy = lists:usort([TB || {TB, _} <- [Base], TB >= T, TB < Last] ++ rw_timeline:contact_times(T, Last, TL)),
     #st{p = {X, Y, Z}, v = {VX, VY, VZ}, q = Q, w = W} = St,
     try flight(T, X, Y, Z, VX, VY, VZ, Q, W, Last, Ctx, rw_island:free_zone(Island0), Island0, rw_sync:next_at(T, Cal),
-               Busy, [], <<>>, none, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0) of
+               Busy, [], <<>>, none, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, rw_native:enabled()) of
         {Passed, Bin, Extents, Reach, Island} -> {Passed, [rw_states:packed(Bin, Rot, Extents, Reach)], Island}
     catch
         %% (a move between states too far apart for a double: the reach is
@@ -98,12 +98,41 @@ substep(T, St, {M, _, Base, TL, _}, Island0) ->
 %% test, rw_island:touches_no_fixture/4). Other substeps (a fixture
 %% touched, a known contact, the group's start) go through the island as
 %% in alone/7. Sync is the next sync point, Busy the substeps known not to
-%% be free.
+%% be free. The substeps in the free zone up to the next sync point or busy
+%% substep are the C loop's (rw_native:free_run/13: the same operations),
+%% one at a time here where it cannot take them.
 flight(T, _X, _Y, _Z, _VX, _VY, _VZ, _Q, _W, Last, _Ctx, _Zone, Island, _Sync, _Busy, Passed, Bin,
-       _PX, X0, Y0, Z0, X1, Y1, Z1, Reach) when T >= Last ->
+       _PX, X0, Y0, Z0, X1, Y1, Z1, Reach, _Native) when T >= Last ->
     {lists:reverse(Passed), Bin, {X0, Y0, Z0, X1, Y1, Z1}, Reach, Island};
-flight(T, X, Y, Z, VX, VY, VZ, Q, W, Last, {#model{dt = Dt, gravity = G, integrator = Int}, DtT, _, _, Cal} = Ctx,
-       Zone, Island, Sync, Busy, Passed0, Bin, First, X0, Y0, Z0, X1, Y1, Z1, Reach)
+flight(T, X, Y, Z, VX, VY, VZ, Q, W, Last, {#model{dt = Dt, gravity = G, integrator = Int}, DtT, _, _, _} = Ctx,
+       Zone, Island, Sync, Busy, Passed, Bin, First, X0, Y0, Z0, X1, Y1, Z1, Reach, true)
+  when Zone =/= none, T =/= Sync ->
+    Next = case Busy of
+               [B | _] -> B;
+               [] -> none
+           end,
+    case Next =/= T andalso rw_native:free_run(T, Last, DtT, Dt, Sync, Next, Zone, G, Int, {X, Y, Z, VX, VY, VZ}, Q, W,
+                                               {First, {X0, Y0, Z0, X1, Y1, Z1}, Reach}) of
+        {T1, {NX, NY, NZ, NVX, NVY, NVZ}, NQ, States, {First1, {NX0, NY0, NZ0, NX1, NY1, NZ1}, Reach1}} when T1 > T ->
+            Bin1 = <<Bin/binary, States/binary>>,
+            case T1 >= Last of
+                true -> flight(T1, NX, NY, NZ, NVX, NVY, NVZ, NQ, W, Last, Ctx, Zone, Island, Sync, Busy, Passed, Bin1,
+                               First1, NX0, NY0, NZ0, NX1, NY1, NZ1, Reach1, true);
+                false -> flight_one(T1, NX, NY, NZ, NVX, NVY, NVZ, NQ, W, Last, Ctx, Zone, Island, Sync, Busy, Passed,
+                                    Bin1, First1, NX0, NY0, NZ0, NX1, NY1, NZ1, Reach1, true)
+            end;
+        _ ->
+            flight_one(T, X, Y, Z, VX, VY, VZ, Q, W, Last, Ctx, Zone, Island, Sync, Busy, Passed, Bin, First,
+                       X0, Y0, Z0, X1, Y1, Z1, Reach, true)
+    end;
+flight(T, X, Y, Z, VX, VY, VZ, Q, W, Last, Ctx, Zone, Island, Sync, Busy, Passed, Bin, First, X0, Y0, Z0, X1, Y1, Z1,
+       Reach, Native) ->
+    flight_one(T, X, Y, Z, VX, VY, VZ, Q, W, Last, Ctx, Zone, Island, Sync, Busy, Passed, Bin, First, X0, Y0, Z0, X1, Y1,
+               Z1, Reach, Native).
+
+%% One substep of flight/26, in Erlang.
+flight_one(T, X, Y, Z, VX, VY, VZ, Q, W, Last, {#model{dt = Dt, gravity = G, integrator = Int}, DtT, _, _, Cal} = Ctx,
+       Zone, Island, Sync, Busy, Passed0, Bin, First, X0, Y0, Z0, X1, Y1, Z1, Reach, Native)
   when is_float(X), is_float(Y), is_float(Z), is_float(VX), is_float(VY), is_float(VZ), is_float(Dt) ->
     {Post, NX, NY, NZ, NVX, NVY, NVZ, NQ, NW, Zone1, Island1} =
         case is_free(T, X, Y, Z, Zone, Busy, Island) of
@@ -156,7 +185,7 @@ flight(T, X, Y, Z, VX, VY, VZ, Q, W, Last, {#model{dt = Dt, gravity = G, integra
             %% the first state: the box is its position, the reach 0 (as
             %% rw_states:pack/4 measures them)
             flight(T + DtT, NX, NY, NZ, NVX, NVY, NVZ, NQ, NW, Last, Ctx, Zone1, Island1, Sync1, Busy1, Passed, Bin1,
-                   some, NX, NY, NZ, NX, NY, NZ, 0.0);
+                   some, NX, NY, NZ, NX, NY, NZ, 0.0, Native);
         _ when is_float(NX), is_float(NY), is_float(NZ), is_float(X0), is_float(Y0), is_float(Z0), is_float(X1),
                is_float(Y1), is_float(Z1), is_float(Reach) ->
             Step = abs(NX - X) + abs(NY - Y) + abs(NZ - Z),
@@ -164,7 +193,7 @@ flight(T, X, Y, Z, VX, VY, VZ, Q, W, Last, {#model{dt = Dt, gravity = G, integra
                    some, if NX < X0 -> NX; true -> X0 end, if NY < Y0 -> NY; true -> Y0 end,
                    if NZ < Z0 -> NZ; true -> Z0 end, if NX > X1 -> NX; true -> X1 end,
                    if NY > Y1 -> NY; true -> Y1 end, if NZ > Z1 -> NZ; true -> Z1 end,
-                   if Step > Reach -> Step; true -> Reach end)
+                   if Step > Reach -> Step; true -> Reach end, Native)
     end.
 
 %% Free at T: not busy, and in the free zone or, where the island has

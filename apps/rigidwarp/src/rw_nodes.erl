@@ -194,18 +194,54 @@ connect([Node | Rest], Acc) ->
     end.
 
 %% Load this node's engine on Node: its modules' object code, so that
-%% every node runs the same engine whatever it has installed.
+%% every node runs the same engine whatever it has installed, and its C
+%% loops' library (rw_native), copied into a temporary directory of Node
+%% for the module to load and removed again (where Node cannot load it,
+%% it runs the Erlang code: the same results).
 load(Node) ->
     _ = [application:load(App) || App <- ?APPS],
     Mods = lists:append([Ms || App <- ?APPS, {ok, Ms} <- [application:get_key(App, modules)]]),
     try
-        lists:foreach(fun(M) ->
-                              {M, Bin, File} = code:get_object_code(M),
-                              {module, M} = erpc:call(Node, code, load_binary, [M, File, Bin], ?CONNECT_MS)
-                      end, Mods)
+        Library = ship_native(Node),
+        try
+            lists:foreach(fun(M) ->
+                                  {M, Bin, File} = code:get_object_code(M),
+                                  {module, M} = erpc:call(Node, code, load_binary, [M, File, Bin], ?CONNECT_MS)
+                          end, Mods)
+        after
+            unship_native(Node, Library)
+        end
     of
         ok -> ok
     catch
         Class:Reason ->
             {error, lists:flatten(io_lib:format("cannot load the engine on ~ts: ~0p", [Node, {Class, Reason}]))}
     end.
+
+%% The library's file on Node, where rw_native's loader looks
+%% (rw_native:library_variable/0), or none.
+ship_native(Node) ->
+    case rw_native:library() of
+        {ok, Lib} ->
+            Tmp = erpc:call(Node, os, getenv, ["TMPDIR", "/tmp"], ?CONNECT_MS),
+            Dir = filename:join(Tmp, "rigidwarp-native-" ++ integer_to_list(erlang:unique_integer([positive]))
+                                ++ "-" ++ os:getpid()),
+            File = filename:join(Dir, "rw_native.so"),
+            case erpc:call(Node, file, make_dir, [Dir], ?CONNECT_MS) =:= ok andalso
+                erpc:call(Node, file, write_file, [File, Lib], ?CONNECT_MS) =:= ok of
+                true ->
+                    true = erpc:call(Node, os, putenv, [rw_native:library_variable(), Dir], ?CONNECT_MS),
+                    {Dir, File};
+                false ->
+                    none
+            end;
+        none ->
+            none
+    end.
+
+unship_native(_Node, none) -> ok;
+unship_native(Node, {Dir, File}) ->
+    _ = erpc:call(Node, os, unsetenv, [rw_native:library_variable()], ?CONNECT_MS),
+    _ = erpc:call(Node, file, delete, [File], ?CONNECT_MS),
+    _ = erpc:call(Node, file, del_dir, [Dir], ?CONNECT_MS),
+    ok.

@@ -161,15 +161,23 @@ displacement({Size, _, true, Bin, _, _}, I) ->
 %% apart, and are not read. Margin is far above the rounding of D and of
 %% the multiples of Reach, so no touch is ever skipped; the offset found is
 %% the one a check of every substep finds.
+%% (The scan is the C loop's, rw_native:first_touch/10, where it can take
+%% it: the same operations.)
 -spec first_touch(packed(), pos_integer(), packed(), pos_integer(), non_neg_integer(), float()) ->
           non_neg_integer() | none.
 first_touch({_, _, _, _, _, ReachA} = StsA, IA, {_, _, _, _, _, ReachB} = StsB, IB, Left, Sum)
   when ReachA =:= undefined; ReachB =:= undefined ->
-    touch(IA, IB, Left, StsA, StsB, Sum, Sum * Sum, 0.0, undefined, 0);
+    scan(IA, IB, Left, StsA, StsB, Sum, 0.0, undefined);
 first_touch(StsA, IA, StsB, IB, Left, Sum) ->
     Margin = 1.0e-9 * (Sum + max(scale(extents(StsA)), scale(extents(StsB)))),
     Reach = (reach(StsA) + reach(StsB)) * (1.0 + 1.0e-9),
-    touch(IA, IB, Left, StsA, StsB, Sum, Sum * Sum, Margin, Reach, 0).
+    scan(IA, IB, Left, StsA, StsB, Sum, Margin, Reach).
+
+scan(IA, IB, Left, {SizeA, _, _, BinA, _, _} = StsA, {SizeB, _, _, BinB, _, _} = StsB, Sum, Margin, Reach) ->
+    case rw_native:enabled() andalso rw_native:first_touch(BinA, SizeA, IA, BinB, SizeB, IB, Left, Sum, Margin, Reach) of
+        Found when is_integer(Found); Found =:= none -> Found;
+        _ -> touch(IA, IB, Left, StsA, StsB, Sum, Sum * Sum, Margin, Reach, 0)
+    end.
 
 scale({X0, Y0, Z0, X1, Y1, Z1}) -> max(max(max(abs(X0), abs(Y0)), max(abs(Z0), abs(X1))), max(abs(Y1), abs(Z1))).
 

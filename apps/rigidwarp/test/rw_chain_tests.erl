@@ -3,7 +3,8 @@
 %% island. Both must give the same states, sync points and island, bit for
 %% bit: in free flight with and without gravity (each integrator) and
 %% rotation, bouncing on a floor and in a box mid-step, with a known
-%% contact with the outside, from a group's start, across sync points.
+%% contact with the outside, from a group's start, across sync points;
+%% the fast path with its C loop (rw_native) and with the Erlang code alone.
 -module(rw_chain_tests).
 -include_lib("eunit/include/eunit.hrl").
 -include_lib("rigidwarp/include/rigidwarp.hrl").
@@ -30,10 +31,13 @@ fast_path_equals_each_substep_test_() ->
      || {Mi, M} <- lists:enumerate(models()), {Fi, Fx} <- lists:enumerate(sceneries()), C <- lists:seq(1, ?CASES div 6),
         Case <- [a_case(M, Fx)]].
 
+%% (the fast path with its C loop, rw_native, and with the Erlang code alone)
 same({T, St, Last, Ctx, Island}) ->
     Fast = rw_chain:run(T, {St}, Last, Ctx, Island),
+    ok = rw_native:use(false),
+    FastErlang = try rw_chain:run(T, {St}, Last, Ctx, Island) after ok = rw_native:use(true) end,
     Each = rw_chain:run_each(T, St, Last, Ctx, Island),
-    rw_test_lib:bitwise_equal(Fast, Each).
+    rw_test_lib:bitwise_equal(Fast, Each) andalso rw_test_lib:bitwise_equal(FastErlang, Each).
 
 %% A sphere gliding along a wall of its box or along the floor, close
 %% enough to be out of its free zone for the whole step, touching the wall

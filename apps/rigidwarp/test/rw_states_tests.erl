@@ -62,7 +62,8 @@ off_heap_test() ->
     ?assert(erts_debug:flat_size(Bin) < 10).
 
 %% first_touch/6 skips substeps at which two bodies are too far apart to
-%% touch: it must find exactly the offset a check of every substep finds.
+%% touch: it must find exactly the offset a check of every substep finds,
+%% with its C loop (rw_native) and in Erlang alone.
 %% Straight approaches at full reach are the tight case (one substep
 %% skipped too many misses the touch); random walks, bodies at rest, far
 %% coordinates and touches at the very first or last substep cover the rest.
@@ -71,6 +72,10 @@ first_touch_equals_every_substep_test() ->
     Cases = [touch_case(K) || K <- lists:seq(1, 3000)],
     Results = [{first_touch(C), brute_touch(C)} || C <- Cases],
     [?assertEqual(Brute, Skipping) || {Skipping, Brute} <- Results],
+    %% the scan in C (rw_native) and in Erlang alone
+    ok = rw_native:use(false),
+    InErlang = try [first_touch(C) || C <- Cases] after ok = rw_native:use(true) end,
+    ?assertEqual([Brute || {_, Brute} <- Results], InErlang),
     %% the cases do touch, at many different offsets, and sometimes not
     Offsets = lists:usort([K || {K, _} <- Results]),
     ?assert(lists:member(none, Offsets)),

@@ -1,0 +1,115 @@
+%% Two hot loops of the engine in C (c_src/rw_native.c, built into
+%% priv/rw_native.so): a body's free flight (rw_chain) and the scan of two
+%% bodies' packed positions for their first touch (rw_states). Each does
+%% the Erlang code's float operations in the same order, so the results are
+%% bit for bit the same; where the Erlang code would raise or fail on its
+%% arguments, the C code answers fallback and the caller runs the Erlang
+%% code from the same point. Where the library cannot be loaded (the
+%% escript copied away from its build) enabled/0 says so, the callers run
+%% the Erlang code alone, slower and with the same results.
+-module(rw_native).
+-export([free_run/13, first_touch/10, loaded/0, enabled/0, use/1, library/0, library_variable/0]).
+-on_load(init/0).
+
+-define(LOADED, {?MODULE, loaded}).
+-define(LIBRARY, {?MODULE, library}).
+-define(ENABLED, {?MODULE, enabled}).
+
+%% The library from the application's priv directory or, from the
+%% rigidwarp escript (whose archive holds no priv directory), from the
+%% build's lib directory beside the escript's bin directory, as rw_viewer
+%% finds its files; on a node a run has loaded the engine on
+%% (rw_nodes), from where the run has copied it.
+init() ->
+    case load_first(candidates()) of
+        {ok, File} ->
+            persistent_term:put(?LIBRARY, File ++ ".so"),
+            persistent_term:put(?LOADED, true),
+            persistent_term:put(?ENABLED, true);
+        none ->
+            persistent_term:put(?LOADED, false),
+            persistent_term:put(?ENABLED, false)
+    end.
+
+load_first([]) -> none;
+load_first([Dir | Rest]) ->
+    File = filename:join(Dir, "rw_native"),
+    case erlang:load_nif(File, 0) of
+        ok -> {ok, File};
+        {error, _} -> load_first(Rest)
+    end.
+
+candidates() ->
+    Copied = case os:getenv(library_variable()) of
+                 false -> [];
+                 Dir -> [Dir]
+             end,
+    Priv = case code:priv_dir(rigidwarp) of
+               {error, _} -> [];
+               Dir1 -> [Dir1]
+           end,
+    Build = try escript:script_name() of
+                Script -> [filename:join([filename:dirname(filename:dirname(filename:absname(Script))), "lib", "rigidwarp",
+                                          "priv"])]
+            catch
+                _:_ -> []
+            end,
+    Copied ++ Priv ++ Build.
+
+%% The environment variable naming the directory of a copy of the library
+%% (set by rw_nodes on a node while it loads the engine there).
+-spec library_variable() -> string().
+library_variable() -> "RIGIDWARP_NATIVE_DIR".
+
+%% The library loaded here, to copy to another node, or none.
+-spec library() -> {ok, binary()} | none.
+library() ->
+    case persistent_term:get(?LIBRARY, none) of
+        none -> none;
+        File ->
+            case file:read_file(File) of
+                {ok, Lib} -> {ok, Lib};
+                {error, _} -> none
+            end
+    end.
+
+%% Is the C library loaded?
+-spec loaded() -> boolean().
+loaded() -> persistent_term:get(?LOADED, false).
+
+%% Are the C loops loaded and in use? (Callers ask once per loop they run,
+%% and call them only then.)
+-spec enabled() -> boolean().
+enabled() -> persistent_term:get(?ENABLED, false).
+
+%% Use the C loops (true, the default once loaded) or the Erlang code
+%% alone (false): to compare the two, bit for bit, in one VM.
+-spec use(boolean()) -> ok.
+use(Native) -> persistent_term:put(?ENABLED, Native andalso loaded()).
+
+%% A body alone without CCD flying free from T (rw_chain:flight/26): while
+%% T < Last, T is neither Sync nor Busy (none: no such substep) and the
+%% body is in Zone (always, or {AX, AY, AZ, L2}: within sqrt(L2) of the
+%% anchor), substeps of Dt seconds (DtT ticks) under Gravity (undefined or
+%% a vector) with Integrator. State is {X, Y, Z, VX, VY, VZ}, Q and W the
+%% orientation and spin (undefined without rotation), Acc {First, Box,
+%% Reach} as rw_chain measures the states. Returns the time and state
+%% reached, the orientation, the states' records to append and Acc, or
+%% fallback (nothing done: the Erlang code takes over).
+-spec free_run(non_neg_integer(), non_neg_integer(), pos_integer(), float(), non_neg_integer() | none,
+               non_neg_integer() | none, always | {float(), float(), float(), float()},
+               undefined | rw_vec:vec(), atom(), {float(), float(), float(), float(), float(), float()},
+               undefined | rw_quat:quat(), undefined | rw_vec:vec(),
+               {none | some, rw_shape:box6(), float()}) ->
+          {non_neg_integer(), {float(), float(), float(), float(), float(), float()}, undefined | rw_quat:quat(),
+           binary(), {none | some, rw_shape:box6(), float()}} | fallback.
+free_run(_T, _Last, _DtT, _Dt, _Sync, _Busy, _Zone, _Gravity, _Integrator, _State, _Q, _W, _Acc) ->
+    erlang:nif_error(not_loaded).
+
+%% rw_states:touch/10 over the packed records BinA (SizeA bytes each,
+%% from the IA-th) and BinB: the first offset K in 0..Left at which the
+%% positions are closer than Sum, none, or fallback.
+-spec first_touch(binary(), pos_integer(), pos_integer(), binary(), pos_integer(), pos_integer(),
+                  non_neg_integer(), float(), float(), float() | undefined) -> non_neg_integer() | none | fallback.
+first_touch(_BinA, _SizeA, _IA, _BinB, _SizeB, _IB, _Left, _Sum, _Margin, _Reach) ->
+    erlang:nif_error(not_loaded).

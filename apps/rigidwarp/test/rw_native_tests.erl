@@ -1,0 +1,144 @@
+%% The C loops (rw_native) against the Erlang code they stand for: the same
+%% results bit for bit, with the library used and with the Erlang code alone,
+%% at awkward doubles too (signed zeros, subnormals, coordinates near the
+%% largest double, where the Erlang code raises badarith and the C code
+%% must hand over to it). rw_chain_tests and rw_states_tests run their cases
+%% both ways as well.
+-module(rw_native_tests).
+-include_lib("eunit/include/eunit.hrl").
+-include_lib("rigidwarp/include/rigidwarp.hrl").
+
+%% The build compiles the library, and the tests run against it: else the
+%% comparisons below would compare the Erlang code with itself.
+loaded_test() ->
+    ?assert(rw_native:loaded()).
+
+%% Fun's result (or exception) with the C loops, and with the Erlang code
+%% alone.
+both_ways(Fun) ->
+    Native = outcome(Fun),
+    ok = rw_native:use(false),
+    try
+        {Native, outcome(Fun)}
+    after
+        ok = rw_native:use(true)
+    end.
+
+outcome(Fun) ->
+    try {ok, Fun()}
+    catch Class:Reason -> {Class, Reason}
+    end.
+
+specials() -> [0.0, -0.0, 5.0e-324, -2.2250738585072014e-308, 1.0e300, -1.0e300, 1.7976931348623157e308, 3.5, -0.25].
+
+pick() ->
+    case rand:uniform(3) of
+        1 -> lists:nth(rand:uniform(length(specials())), specials());
+        _ -> (rand:uniform() - 0.5) * math:pow(10.0, rand:uniform(40) - 20)
+    end.
+
+vec() -> {pick(), pick(), pick()}.
+
+%% A body alone in free flight, no fixture, at awkward positions, velocities
+%% and spins, with every integrator, across sync points and a known
+%% contact: rw_chain:run/5's states, sync points and island, or its
+%% exception, the same both ways.
+free_flight_at_awkward_doubles_test() ->
+    _ = rand:seed(exsss, {5, 6, 7}),
+    Results = [both_ways(fun() -> run(Case) end) || K <- lists:seq(1, 600), Case <- [free_case(K)]],
+    [?assert(rw_test_lib:bitwise_equal(Native, Erlang)) || {Native, Erlang} <- Results],
+    %% the cases run to their end and, some, into badarith
+    Kinds = lists:usort([element(1, Native) || {Native, _} <- Results]),
+    ?assertEqual([error, ok], Kinds).
+
+free_case(K) ->
+    Rot = K rem 2 =:= 0,
+    Gravity = case K rem 5 of
+                  0 -> undefined;
+                  _ -> vec()
+              end,
+    Integrator = lists:nth(K rem 3 + 1, [symplectic_euler, explicit_euler, verlet]),
+    M = #model{gravity = Gravity, integrator = Integrator, rotation = Rot, dt = lists:nth(K rem 2 + 1, [0.001, 1.0e-6])},
+    Sphere = #sphere{idx = 1, id = <<"s">>, radius = 0.5, mass = 1.0, inv_mass = 1.0, inv_inertia = 10.0},
+    St = case Rot of
+             true ->
+                 W = case rand:uniform(3) of
+                         1 -> {-0.0, 0.0, -0.0};
+                         _ -> vec()
+                     end,
+                 #st{p = vec(), v = vec(), q = {{0.0, 0.0, 0.0}, 1.0}, w = W};
+             false -> #st{p = vec(), v = vec()}
+         end,
+    T = rand:uniform(50),
+    Last = T + rand:uniform(100),
+    TL = case rand:uniform(3) of
+             1 -> rw_timeline:put_contacts(T + 3, #{{T + 3, 0, 1, make_ref()} => {1, 0, {{0.0, 0.5, 0.0}, undefined, {0.0, 0.0, 0.0}}}},
+                                           rw_timeline:new());
+             _ -> rw_timeline:new()
+         end,
+    Cal = rw_sync:new(10, 64, Last, 0),
+    {T, St, Last, {M, 1, none, TL, Cal}, rw_island:new(M, [Sphere], [])}.
+
+run({T, St, Last, Ctx, Island}) -> rw_chain:run(T, {St}, Last, Ctx, Island).
+
+%% The scan for the first touch over awkward positions, far apart, at the
+%% same place, near overflow, with and without the bodies' reach.
+first_touch_at_awkward_doubles_test() ->
+    _ = rand:seed(exsss, {8, 9, 10}),
+    Results = [both_ways(fun() -> first_touch(Case) end) || _ <- lists:seq(1, 2000), Case <- touch_case()],
+    [?assert(rw_test_lib:bitwise_equal(Native, Erlang)) || {Native, Erlang} <- Results],
+    Found = lists:usort([case R of {ok, K} when is_integer(K) -> found; {ok, none} -> none; _ -> raised end
+                         || {R, _} <- Results]),
+    ?assertEqual([found, none, raised], Found).
+
+%% Two bodies' packed paths (none where building them overflows).
+touch_case() ->
+    N = rand:uniform(40),
+    Base = vec(),
+    Path = fun() ->
+                   Step = vec(),
+                   Scale = math:pow(10.0, -rand:uniform(300)),
+                   [#st{p = rw_vec:madd(Base, Step, float(I) * Scale), v = {0.0, 0.0, 0.0}} || I <- lists:seq(1, N)]
+           end,
+    try
+        A = rw_states:pack(Path(), undefined, false, false),
+        B = rw_states:pack(Path(), undefined, false, false),
+        I = rand:uniform(N),
+        [{A, I, B, I, N - I, lists:nth(rand:uniform(4), [0.0, 1.0e-300, 1.0, abs(pick())])}]
+    catch
+        error:badarith -> []
+    end.
+
+first_touch({A, IA, B, IB, Left, Sum}) -> rw_states:first_touch(A, IA, B, IB, Left, Sum).
+
+%% A step longer than the C loop takes in one call (4096 substeps) and a
+%% scan longer than it takes at all: the same results, over several calls
+%% and in Erlang.
+long_runs_test() ->
+    M = #model{gravity = {0.0, -9.81, 0.0}, dt = 1.0e-5},
+    Sphere = #sphere{idx = 1, id = <<"s">>, radius = 0.5, mass = 1.0, inv_mass = 1.0, inv_inertia = 10.0},
+    Case = {0, #st{p = {0.0, 100.0, 0.0}, v = {1.0, 2.0, -0.0}}, 10000,
+            {M, 1, none, rw_timeline:new(), rw_sync:new(10000, 20000, 10000, 0)}, rw_island:new(M, [Sphere], [])},
+    {Native, Erlang} = both_ways(fun() -> run(Case) end),
+    ?assertMatch({ok, {_, [_], _}}, Native),
+    ?assert(rw_test_lib:bitwise_equal(Native, Erlang)),
+    {ok, {_, [Packed], _}} = Native,
+    ?assertEqual(10000, rw_states:count(Packed)),
+    Still = rw_states:pack(lists:duplicate(70001, #st{p = {0.0, 0.0, 0.0}, v = {0.0, 0.0, 0.0}}), undefined, false, false),
+    Far = rw_states:pack(lists:duplicate(70001, #st{p = {3.0, 0.0, 0.0}, v = {0.0, 0.0, 0.0}}), undefined, false, false),
+    ?assertEqual({{ok, none}, {ok, none}}, both_ways(fun() -> rw_states:first_touch(Still, 1, Far, 1, 70000, 1.0) end)).
+
+%% Arguments the C code does not take are the Erlang code's.
+fallback_test() ->
+    Acc = {none, {0.0, 0.0, 0.0, 0.0, 0.0, 0.0}, 0.0},
+    ?assertEqual(fallback, rw_native:free_run(0, 10, 1, 0.001, none, none, always, undefined, symplectic_euler,
+                                              {0, 0.0, 0.0, 0.0, 0.0, 0.0}, undefined, undefined, Acc)),
+    ?assertEqual(fallback, rw_native:free_run(0, 10, 1, 0.001, none, none, always, {0.0, -9.81, 0.0}, midpoint,
+                                              {0.0, 0.0, 0.0, 0.0, 0.0, 0.0}, undefined, undefined, Acc)),
+    Bin = <<0:(48 * 8)>>,
+    ?assertEqual(fallback, rw_native:first_touch(Bin, 48, 2, Bin, 48, 1, 0, 1.0, 0.0, undefined)),
+    ?assertEqual(0, rw_native:first_touch(Bin, 48, 1, Bin, 48, 1, 0, 1.0, 0.0, undefined)),
+    %% a step of no substeps
+    ?assertMatch({3, _, undefined, <<>>, Acc},
+                 rw_native:free_run(3, 3, 1, 0.001, none, none, always, undefined, symplectic_euler,
+                                    {0.0, 0.0, 0.0, 0.0, 0.0, 0.0}, undefined, undefined, Acc)).
