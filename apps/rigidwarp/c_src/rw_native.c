@@ -22,7 +22,7 @@
 #include <string.h>
 
 static ERL_NIF_TERM atom_always, atom_none, atom_some, atom_undefined, atom_fallback, atom_symplectic_euler,
-    atom_explicit_euler, atom_verlet;
+    atom_explicit_euler, atom_verlet, atom_near, atom_fixture, atom_plane, atom_box, atom_hollow, atom_unbounded;
 
 static int load(ErlNifEnv *env, void **priv, ERL_NIF_TERM info) {
     (void)priv;
@@ -35,6 +35,12 @@ static int load(ErlNifEnv *env, void **priv, ERL_NIF_TERM info) {
     atom_symplectic_euler = enif_make_atom(env, "symplectic_euler");
     atom_explicit_euler = enif_make_atom(env, "explicit_euler");
     atom_verlet = enif_make_atom(env, "verlet");
+    atom_near = enif_make_atom(env, "near");
+    atom_fixture = enif_make_atom(env, "fixture");
+    atom_plane = enif_make_atom(env, "plane");
+    atom_box = enif_make_atom(env, "box");
+    atom_hollow = enif_make_atom(env, "hollow");
+    atom_unbounded = enif_make_atom(env, "unbounded");
     return 0;
 }
 
@@ -86,6 +92,86 @@ static ERL_NIF_TERM make_doubles(ErlNifEnv *env, const double *d, int n) {
 /* (a result Erlang would refuse: infinite or not a number) */
 #define CHECK(v) (bad |= !isfinite(v))
 
+/* A fixture near a body, as rw_narrow:fixture/3 tests it. */
+enum shape { PLANE, HOLLOW_BOX, OTHER };
+struct fixture {
+    int bounded;
+    double box[6];     /* its bounding box, when bounded */
+    enum shape shape;
+    double a[3], b[3]; /* plane: normal and (b[0]) offset; hollow box: centre, half extents */
+};
+#define MAX_NEAR 16
+
+/* #fixture{shape = Shape, box = Box} */
+static int get_fixture(ErlNifEnv *env, ERL_NIF_TERM term, struct fixture *f) {
+    const ERL_NIF_TERM *rec, *shape;
+    int arity, shape_arity;
+    if (!enif_get_tuple(env, term, &arity, &rec) || arity != 5 || !enif_is_identical(rec[0], atom_fixture) ||
+        !enif_get_tuple(env, rec[3], &shape_arity, &shape) || shape_arity < 1)
+        return 0;
+    if (enif_is_identical(rec[4], atom_unbounded)) f->bounded = 0;
+    else if (get_doubles(env, rec[4], 6, f->box)) f->bounded = 1;
+    else return 0;
+    if (enif_is_identical(shape[0], atom_plane) && shape_arity == 3) {
+        f->shape = PLANE;
+        return get_doubles(env, shape[1], 3, f->a) && enif_get_double(env, shape[2], &f->b[0]);
+    }
+    if (enif_is_identical(shape[0], atom_box) && shape_arity == 4 && enif_is_identical(shape[3], atom_hollow)) {
+        f->shape = HOLLOW_BOX;
+        return get_doubles(env, shape[1], 3, f->a) && get_doubles(env, shape[2], 3, f->b);
+    }
+    f->shape = OTHER;
+    return 1;
+}
+
+/*
+ * Does a sphere of radius r at (x, y, z) certainly touch none of the
+ * fixtures, by rw_narrow:fixture/3's own operations? 1: none touched; 0:
+ * one may be (a contact, or a shape whose test is left to the Erlang
+ * code). Sets *bad where an operation gives no finite double.
+ */
+static int touches_none(const struct fixture *fs, int n, double x, double y, double z, double r, int *bad_out) {
+    int bad = 0;
+    for (int i = 0; i < n; i++) {
+        const struct fixture *f = &fs[i];
+        if (f->bounded) {
+            /* X + R < X0 orelse X - R > X1 orelse ... : rejected by the box */
+            double c[6] = {x + r, x - r, y + r, y - r, z + r, z - r};
+            int rejected = 0;
+            for (int k = 0; k < 6 && !rejected; k++) {
+                CHECK(c[k]);
+                rejected = (k % 2 == 0) ? c[k] < f->box[k / 2] : c[k] > f->box[3 + k / 2];
+            }
+            if (bad) break;
+            if (rejected) continue;
+        }
+        if (f->shape == PLANE) {
+            /* Depth = R - (vdot(N, P) - Off), a contact when above 0.0 */
+            double d1 = f->a[0] * x, d2 = f->a[1] * y, d3 = f->a[2] * z;
+            double dot = d1 + d2 + d3, rel = dot - f->b[0], depth = r - rel;
+            CHECK(d1); CHECK(d2); CHECK(d3); CHECK(d1 + d2); CHECK(dot); CHECK(rel); CHECK(depth);
+            if (bad) break;
+            if (depth > 0.0) { *bad_out = 0; return 0; }
+        } else if (f->shape == HOLLOW_BOX) {
+            /* the six depths rw_narrow tests before computing any wall */
+            double cx = f->a[0], cy = f->a[1], cz = f->a[2], ex = f->b[0], ey = f->b[1], ez = f->b[2];
+            double lo[3] = {cx - ex, cy - ey, cz - ez}, hi[3] = {cx + ex, cy + ey, cz + ez}, p[3] = {x, y, z};
+            for (int k = 0; k < 3; k++) {
+                double in_lo = p[k] - lo[k], d_lo = r - in_lo, in_hi = -p[k] + hi[k], d_hi = r - in_hi;
+                CHECK(lo[k]); CHECK(hi[k]); CHECK(in_lo); CHECK(d_lo); CHECK(in_hi); CHECK(d_hi);
+                if (bad) break;
+                if (d_lo > 0.0 || d_hi > 0.0) { *bad_out = 0; return 0; }
+            }
+            if (bad) break;
+        } else {
+            *bad_out = 0;
+            return 0;
+        }
+    }
+    *bad_out = bad;
+    return !bad;
+}
+
 /*
  * free_run(T, Last, DtT, Dt, Sync, Busy, Zone, Gravity, Integrator,
  *          {X, Y, Z, VX, VY, VZ}, Q, W, {First, {X0, Y0, Z0, X1, Y1, Z1}, Reach})
@@ -93,7 +179,10 @@ static ERL_NIF_TERM make_doubles(ErlNifEnv *env, const double *d, int n) {
  * Q, W: the orientation {{QX, QY, QZ}, QW} and spin {WX, WY, WZ}, or both
  * undefined (no rotation).
  * Sync, Busy: the next sync point and busy substep (none: no such).
- * Zone: always or {AX, AY, AZ, L2} (rw_island:free_zone/1).
+ * Zone: always or {AX, AY, AZ, L2} (rw_island:free_zone/1), or
+ * {near, AX, AY, AZ, Limit, R, Fixtures} (rw_island:near_zone/1: free
+ * within Limit of the anchor where touches_no_fixture/4 finds no fixture
+ * touched).
  * Gravity: undefined or {GX, GY, GZ}.
  *
  * Steps substep by substep while T < Last, T is neither Sync nor Busy and
@@ -105,7 +194,10 @@ static ERL_NIF_TERM make_doubles(ErlNifEnv *env, const double *d, int n) {
 static ERL_NIF_TERM free_run(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[]) {
     ErlNifSInt64 t, last, dtt, sync = -1, busy = -1;
     double dt, zone[4] = {0, 0, 0, 0}, g[3] = {0, 0, 0}, s[6], q[4] = {0, 0, 0, 0}, w[3] = {0, 0, 0}, box[6], reach;
-    int always, gravity, integrator = 0, rotation, spinning = 0, first;
+    double radius = 0.0;
+    int always, gravity, integrator = 0, rotation, spinning = 0, first, near = 0, bad = 0;
+    struct fixture fixtures[MAX_NEAR];
+    unsigned nfixtures = 0;
     const ERL_NIF_TERM *elems;
     int arity;
     (void)argc;
@@ -116,7 +208,26 @@ static ERL_NIF_TERM free_run(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[]
     if (!enif_get_int64(env, argv[4], &sync) && !enif_is_identical(argv[4], atom_none)) return atom_fallback;
     if (!enif_get_int64(env, argv[5], &busy) && !enif_is_identical(argv[5], atom_none)) return atom_fallback;
     always = enif_is_identical(argv[6], atom_always);
-    if (!always && !get_doubles(env, argv[6], 4, zone)) return atom_fallback;
+    if (!always && !get_doubles(env, argv[6], 4, zone)) {
+        ERL_NIF_TERM list, head;
+        double limit;
+        if (!enif_get_tuple(env, argv[6], &arity, &elems) || arity != 7 || !enif_is_identical(elems[0], atom_near) ||
+            !enif_get_double(env, elems[1], &zone[0]) || !enif_get_double(env, elems[2], &zone[1]) ||
+            !enif_get_double(env, elems[3], &zone[2]) || !enif_get_double(env, elems[4], &limit) ||
+            !enif_get_double(env, elems[5], &radius) || !enif_get_list_length(env, elems[6], &nfixtures) ||
+            nfixtures > MAX_NEAR)
+            return atom_fallback;
+        /* (touches_no_fixture/4 squares Limit) */
+        zone[3] = limit * limit;
+        CHECK(zone[3]);
+        if (bad) return atom_fallback;
+        list = elems[6];
+        for (unsigned i = 0; i < nfixtures; i++) {
+            if (!enif_get_list_cell(env, list, &head, &list) || !get_fixture(env, head, &fixtures[i]))
+                return atom_fallback;
+        }
+        near = 1;
+    }
     gravity = !enif_is_identical(argv[7], atom_undefined);
     if (gravity) {
         if (!get_doubles(env, argv[7], 3, g)) return atom_fallback;
@@ -149,7 +260,6 @@ static ERL_NIF_TERM free_run(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[]
     if (!enif_alloc_binary(max * record, &states)) return atom_fallback;
     unsigned char *out = states.data;
     double x = s[0], y = s[1], z = s[2], vx = s[3], vy = s[4], vz = s[5];
-    int bad = 0;
 
     ErlNifSInt64 n = 0;
     while (n < max && t < last && t != sync && t != busy) {
@@ -159,6 +269,7 @@ static ERL_NIF_TERM free_run(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[]
             CHECK(dx); CHECK(dy); CHECK(dz); CHECK(dx * dx); CHECK(dy * dy); CHECK(dz * dz); CHECK(d2);
             if (bad) break;
             if (!(d2 <= zone[3])) break;
+            if (near && !touches_none(fixtures, (int)nfixtures, x, y, z, radius, &bad)) break;
         }
         double nx, ny, nz, nvx, nvy, nvz;
         if (!gravity) {

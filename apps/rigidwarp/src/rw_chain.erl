@@ -98,21 +98,29 @@ substep(T, St, {M, _, Base, TL, _}, Island0) ->
 %% test, rw_island:touches_no_fixture/4). Other substeps (a fixture
 %% touched, a known contact, the group's start) go through the island as
 %% in alone/7. Sync is the next sync point, Busy the substeps known not to
-%% be free. The substeps in the free zone up to the next sync point or busy
-%% substep are the C loop's (rw_native:free_run/13: the same operations),
-%% one at a time here where it cannot take them.
+%% be free. The free substeps up to the next sync point or busy substep
+%% are the C loop's (rw_native:free_run/13: the same operations) where it
+%% can tell them free (in the free zone, or near fixtures it can test), one
+%% at a time here where it cannot.
 flight(T, _X, _Y, _Z, _VX, _VY, _VZ, _Q, _W, Last, _Ctx, _Zone, Island, _Sync, _Busy, Passed, Bin,
        _PX, X0, Y0, Z0, X1, Y1, Z1, Reach, _Native) when T >= Last ->
     {lists:reverse(Passed), Bin, {X0, Y0, Z0, X1, Y1, Z1}, Reach, Island};
 flight(T, X, Y, Z, VX, VY, VZ, Q, W, Last, {#model{dt = Dt, gravity = G, integrator = Int}, DtT, _, _, _} = Ctx,
        Zone, Island, Sync, Busy, Passed, Bin, First, X0, Y0, Z0, X1, Y1, Z1, Reach, true)
-  when Zone =/= none, T =/= Sync ->
+  when T =/= Sync ->
     Next = case Busy of
                [B | _] -> B;
                [] -> none
            end,
-    case Next =/= T andalso rw_native:free_run(T, Last, DtT, Dt, Sync, Next, Zone, G, Int, {X, Y, Z, VX, VY, VZ}, Q, W,
-                                               {First, {X0, Y0, Z0, X1, Y1, Z1}, Reach}) of
+    %% (without a free zone, where the island's own test finds the body
+    %% touching none of the fixtures near it)
+    Free = case Zone of
+               none -> rw_island:near_zone(Island);
+               _ -> Zone
+           end,
+    case Next =/= T andalso Free =/= none andalso
+        rw_native:free_run(T, Last, DtT, Dt, Sync, Next, Free, G, Int, {X, Y, Z, VX, VY, VZ}, Q, W,
+                           {First, {X0, Y0, Z0, X1, Y1, Z1}, Reach}) of
         {T1, {NX, NY, NZ, NVX, NVY, NVZ}, NQ, States, {First1, {NX0, NY0, NZ0, NX1, NY1, NZ1}, Reach1}} when T1 > T ->
             Bin1 = <<Bin/binary, States/binary>>,
             case T1 >= Last of

@@ -22,7 +22,15 @@ models() ->
 sceneries() ->
     [[],
      [rw_shape:fixture(0, <<"floor">>, {plane, {0.0, 1.0, 0.0}, 0.0})],
-     [rw_shape:fixture(0, <<"box">>, {box, {0.0, 0.0, 0.0}, {1.5, 1.5, 1.5}, hollow})]].
+     [rw_shape:fixture(0, <<"box">>, {box, {0.0, 0.0, 0.0}, {1.5, 1.5, 1.5}, hollow})],
+     %% a tilted floor, and shapes whose test the C loop leaves to the
+     %% Erlang code beside ones it takes
+     [rw_shape:fixture(0, <<"slope">>, {plane, rw_vec:norm({0.2, 1.0, -0.1}), -0.05})],
+     [rw_shape:fixture(0, <<"floor">>, {plane, {0.0, 1.0, 0.0}, 0.0}),
+      rw_shape:fixture(1, <<"block">>, {box, {0.4, 0.3, 0.0}, {0.2, 0.2, 0.2}, solid}),
+      rw_shape:fixture(2, <<"log">>, {cylinder, {-0.5, 0.35, 0.0}, {0.0, 0.0, 1.0}, 0.15, 1.0})],
+     [rw_shape:fixture(0, <<"box">>, {box, {0.0, 0.0, 0.0}, {1.5, 1.5, 1.5}, hollow}),
+      rw_shape:fixture(1, <<"floor">>, {plane, {0.0, 1.0, 0.0}, 0.0})]].
 
 fast_path_equals_each_substep_test_() ->
     rand:seed(exsss, 2013),

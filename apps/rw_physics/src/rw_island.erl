@@ -25,7 +25,7 @@
 %% anchor, not the six walls, at each substep.
 -module(rw_island).
 -include("rw_physics.hrl").
--export([new/3, size/1, posts/3, step/3, post/3, advance/3, free_zone/1, touches_no_fixture/4]).
+-export([new/3, size/1, posts/3, step/3, post/3, advance/3, free_zone/1, near_zone/1, touches_no_fixture/4]).
 -export_type([island/0, external/0]).
 -include("rw_vec_inline.hrl").
 
@@ -161,6 +161,16 @@ free_zone(#island{model = #model{ccd = false}, spheres = {_}, near = {[]}, fanch
   when is_float(Limit) ->
     {AX, AY, AZ, Limit * Limit};
 free_zone(_) -> none.
+
+%% Where an island of one without a free zone (fixtures listed near) is
+%% free all the same, for touches_no_fixture/4's own test elsewhere (the
+%% engine's C loop, rw_native): the anchor, how far the member may move from
+%% it, its radius and the fixtures it may touch; none for any other island.
+-spec near_zone(island()) -> {near, float(), float(), float(), float(), float(), [#fixture{}]} | none.
+near_zone(#island{model = #model{ccd = false}, spheres = {#sphere{radius = R}}, near = {Near},
+                  fanchors = {{AX, AY, AZ}}, flimit = Limit}) ->
+    {near, AX, AY, AZ, Limit, R, Near};
+near_zone(_) -> none.
 
 %% Whether the one member of an island of one, at position {X, Y, Z} and
 %% with no contact from outside, touches none of its fixtures by post/3's
