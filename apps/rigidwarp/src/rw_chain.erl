@@ -8,6 +8,9 @@
 -export([run/5, run_each/5, pack/2]).
 -export_type([context/0, passed/0]).
 
+%% Substeps to go before asking the C loop again where it took none.
+-define(NATIVE_AGAIN, 16).
+
 %% What a step needs besides the states: the model, the substep, the
 %% members' post-response velocities at the point where their group was
 %% formed (they come from their old entities), the known contacts and the
@@ -33,7 +36,7 @@ run(T, {St}, Last, {#model{ccd = false, rotation = Rot}, _, Base, TL, Cal} = Ctx
     Busy = lists:usort([TB || {TB, _} <- [Base], TB >= T, TB < Last] ++ rw_timeline:contact_times(T, Last, TL)),
     #st{p = {X, Y, Z}, v = {VX, VY, VZ}, q = Q, w = W} = St,
     try flight(T, X, Y, Z, VX, VY, VZ, Q, W, Last, Ctx, rw_island:free_zone(Island0), Island0, rw_sync:next_at(T, Cal),
-               Busy, [], <<>>, none, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, rw_native:enabled()) of
+               Busy, [], <<>>, none, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, native()) of
         {Passed, Bin, Extents, Reach, Island} -> {Passed, [rw_states:packed(Bin, Rot, Extents, Reach)], Island}
     catch
         %% (a move between states too far apart for a double: the reach is
@@ -101,12 +104,15 @@ substep(T, St, {M, _, Base, TL, _}, Island0) ->
 %% be free. The free substeps up to the next sync point or busy substep
 %% are the C loop's (rw_native:free_run/13: the same operations) where it
 %% can tell them free (in the free zone, or near fixtures it can test), one
-%% at a time here where it cannot.
+%% at a time here where it cannot. Native is false (Erlang alone), 0 (try
+%% the C loop) or how many substeps to go before trying it again: a body
+%% resting on the floor is never free, and the C loop would be asked in
+%% vain at every substep.
 flight(T, _X, _Y, _Z, _VX, _VY, _VZ, _Q, _W, Last, _Ctx, _Zone, Island, _Sync, _Busy, Passed, Bin,
        _PX, X0, Y0, Z0, X1, Y1, Z1, Reach, _Native) when T >= Last ->
     {lists:reverse(Passed), Bin, {X0, Y0, Z0, X1, Y1, Z1}, Reach, Island};
 flight(T, X, Y, Z, VX, VY, VZ, Q, W, Last, {#model{dt = Dt, gravity = G, integrator = Int}, DtT, _, _, _} = Ctx,
-       Zone, Island, Sync, Busy, Passed, Bin, First, X0, Y0, Z0, X1, Y1, Z1, Reach, true)
+       Zone, Island, Sync, Busy, Passed, Bin, First, X0, Y0, Z0, X1, Y1, Z1, Reach, 0)
   when T =/= Sync ->
     Next = case Busy of
                [B | _] -> B;
@@ -121,22 +127,32 @@ flight(T, X, Y, Z, VX, VY, VZ, Q, W, Last, {#model{dt = Dt, gravity = G, integra
     case Next =/= T andalso Free =/= none andalso
         rw_native:free_run(T, Last, DtT, Dt, Sync, Next, Free, G, Int, {X, Y, Z, VX, VY, VZ}, Q, W,
                            {First, {X0, Y0, Z0, X1, Y1, Z1}, Reach}) of
+        false ->
+            flight_one(T, X, Y, Z, VX, VY, VZ, Q, W, Last, Ctx, Zone, Island, Sync, Busy, Passed, Bin, First,
+                       X0, Y0, Z0, X1, Y1, Z1, Reach, 0);
         {T1, {NX, NY, NZ, NVX, NVY, NVZ}, NQ, States, {First1, {NX0, NY0, NZ0, NX1, NY1, NZ1}, Reach1}} when T1 > T ->
             Bin1 = <<Bin/binary, States/binary>>,
             case T1 >= Last of
                 true -> flight(T1, NX, NY, NZ, NVX, NVY, NVZ, NQ, W, Last, Ctx, Zone, Island, Sync, Busy, Passed, Bin1,
-                               First1, NX0, NY0, NZ0, NX1, NY1, NZ1, Reach1, true);
+                               First1, NX0, NY0, NZ0, NX1, NY1, NZ1, Reach1, 0);
                 false -> flight_one(T1, NX, NY, NZ, NVX, NVY, NVZ, NQ, W, Last, Ctx, Zone, Island, Sync, Busy, Passed,
-                                    Bin1, First1, NX0, NY0, NZ0, NX1, NY1, NZ1, Reach1, true)
+                                    Bin1, First1, NX0, NY0, NZ0, NX1, NY1, NZ1, Reach1, 0)
             end;
         _ ->
             flight_one(T, X, Y, Z, VX, VY, VZ, Q, W, Last, Ctx, Zone, Island, Sync, Busy, Passed, Bin, First,
-                       X0, Y0, Z0, X1, Y1, Z1, Reach, true)
+                       X0, Y0, Z0, X1, Y1, Z1, Reach, ?NATIVE_AGAIN)
     end;
 flight(T, X, Y, Z, VX, VY, VZ, Q, W, Last, Ctx, Zone, Island, Sync, Busy, Passed, Bin, First, X0, Y0, Z0, X1, Y1, Z1,
        Reach, Native) ->
     flight_one(T, X, Y, Z, VX, VY, VZ, Q, W, Last, Ctx, Zone, Island, Sync, Busy, Passed, Bin, First, X0, Y0, Z0, X1, Y1,
-               Z1, Reach, Native).
+               Z1, Reach, if is_integer(Native), Native > 0 -> Native - 1; true -> Native end).
+
+%% Native at the start of a flight.
+native() ->
+    case rw_native:enabled() of
+        true -> 0;
+        false -> false
+    end.
 
 %% One substep of flight/26, in Erlang.
 flight_one(T, X, Y, Z, VX, VY, VZ, Q, W, Last, {#model{dt = Dt, gravity = G, integrator = Int}, DtT, _, _, Cal} = Ctx,
