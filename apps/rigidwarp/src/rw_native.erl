@@ -11,31 +11,23 @@
 -export([free_run/13, first_touch/10, loaded/0, enabled/0, use/1, library/0, library_variable/0]).
 -on_load(init/0).
 
--define(LOADED, {?MODULE, loaded}).
+%% the library's file, or none
 -define(LIBRARY, {?MODULE, library}).
 -define(ENABLED, {?MODULE, enabled}).
 
-%% The library from the application's priv directory or, from the
-%% rigidwarp escript (whose archive holds no priv directory), from the
-%% build's lib directory beside the escript's bin directory, as rw_viewer
-%% finds its files; on a node a run has loaded the engine on
-%% (rw_nodes), from where the run has copied it.
+%% The library from the application's priv directory (rw_priv: the
+%% escript's too) or, on a node a run has loaded the engine on (rw_nodes),
+%% from where the run has copied it.
 init() ->
-    case load_first(candidates()) of
-        {ok, File} ->
-            persistent_term:put(?LIBRARY, File ++ ".so"),
-            persistent_term:put(?LOADED, true),
-            persistent_term:put(?ENABLED, true);
-        none ->
-            persistent_term:put(?LOADED, false),
-            persistent_term:put(?ENABLED, false)
-    end.
+    Library = load_first(candidates()),
+    persistent_term:put(?LIBRARY, Library),
+    persistent_term:put(?ENABLED, Library =/= none).
 
 load_first([]) -> none;
 load_first([Dir | Rest]) ->
     File = filename:join(Dir, "rw_native"),
     case erlang:load_nif(File, 0) of
-        ok -> {ok, File};
+        ok -> File ++ ".so";
         {error, _} -> load_first(Rest)
     end.
 
@@ -44,17 +36,12 @@ candidates() ->
                  false -> [];
                  Dir -> [Dir]
              end,
-    Priv = case code:priv_dir(rigidwarp) of
-               {error, _} -> [];
-               Dir1 -> [Dir1]
+    %% (outside an escript and without the application's priv directory,
+    %% rw_priv finds none)
+    Priv = try [rw_priv:dir()]
+           catch _:_ -> []
            end,
-    Build = try escript:script_name() of
-                Script -> [filename:join([filename:dirname(filename:dirname(filename:absname(Script))), "lib", "rigidwarp",
-                                          "priv"])]
-            catch
-                _:_ -> []
-            end,
-    Copied ++ Priv ++ Build.
+    Copied ++ Priv.
 
 %% The environment variable naming the directory of a copy of the library
 %% (set by rw_nodes on a node while it loads the engine there).
@@ -75,7 +62,7 @@ library() ->
 
 %% Is the C library loaded?
 -spec loaded() -> boolean().
-loaded() -> persistent_term:get(?LOADED, false).
+loaded() -> persistent_term:get(?LIBRARY, none) =/= none.
 
 %% Are the C loops loaded and in use? (Callers ask once per loop they run,
 %% and call them only then.)

@@ -75,17 +75,9 @@ stop(#{pid := Pid, port := Port}) ->
 -spec url(server()) -> string().
 url(#{host := Host, port := Port}) -> lists:flatten(io_lib:format("http://~s:~b/", [Host, Port])).
 
-%% priv/viewer of the rigidwarp application; from the escript (whose
-%% archive cannot be served) the same directory next to it in _build.
+%% priv/viewer of the rigidwarp application (rw_priv: the escript's too).
 -spec viewer_dir() -> file:filename().
-viewer_dir() ->
-    Priv = code:priv_dir(rigidwarp),
-    case is_list(Priv) andalso filelib:is_dir(Priv) of
-        true -> filename:join(Priv, "viewer");
-        false ->
-            Script = filename:absname(escript:script_name()),
-            filename:join([filename:dirname(filename:dirname(Script)), "lib", "rigidwarp", "priv", "viewer"])
-    end.
+viewer_dir() -> filename:join(rw_priv:dir(), "viewer").
 
 keep({live, Sim}) -> {live, Sim, rw_timewarp:scene(Sim)};
 keep(Playback) -> Playback.
