@@ -434,9 +434,758 @@ static ERL_NIF_TERM first_touch(ErlNifEnv *env, int argc, const ERL_NIF_TERM arg
     }
 }
 
+/*
+ * The island: a contact group's substeps (rw_island:step/3 without CCD
+ * and without contacts from outside), each member's fixture contacts in
+ * turn, the contacts among members, the effects summed in canonical order
+ * and integrated.
+ *
+ * Where rw_native's other loops check each intermediate result, this one
+ * reads the floating-point exception flags: its inputs are finite (Erlang
+ * floats), so the first result that is not finite raises overflow,
+ * division by zero or invalid, which is where the Erlang code raises
+ * badarith. A substep that raises one is dropped, and the Erlang code
+ * takes it.
+ */
+#include <fenv.h>
+#include <stdlib.h>
+
+#define BAD_FLAGS (FE_OVERFLOW | FE_DIVBYZERO | FE_INVALID)
+/* member-substeps per call, about a millisecond at most */
+#define MAX_ISLAND_WORK 16384
+
+enum kind { K_PLANE, K_HOLLOW, K_SOLID, K_CYLINDER };
+
+struct ifixture {
+    long idx;
+    int bounded;
+    double box[6];
+    enum kind kind;
+    double a[3], b[3]; /* plane: normal; boxes: centre, half extents; cylinder: centre, axis */
+    double off, cr, h; /* plane offset; cylinder radius and half length */
+};
+
+struct sphere { long idx; double r, im, ii; };
+
+struct model {
+    double dt, g[3], e, mu, rest_speed, beta, slop;
+    int gravity, friction, rot, integrator;
+};
+
+struct contact { double n[3], depth; };
+
+/* An effect under its key {idx, feature}. */
+struct effect {
+    long key, feature;
+    double dv[3], dw[3], du[3];
+};
+
+/* A growable array of effects. */
+struct effects { struct effect *e; size_t n, cap; };
+
+static struct effect *effects_add(struct effects *es) {
+    if (es->n == es->cap) {
+        size_t cap = es->cap ? 2 * es->cap : 64;
+        struct effect *e = enif_realloc(es->e, cap * sizeof *e);
+        if (!e) return NULL;
+        es->e = e;
+        es->cap = cap;
+    }
+    return &es->e[es->n++];
+}
+
+/* Erlang's min/2 and max/2 (equal terms: the first), abs/1 (-0.0 stays). */
+static inline double emin(double a, double b) { return a <= b ? a : b; }
+static inline double emax(double a, double b) { return a >= b ? a : b; }
+static inline double eabs(double a) { return a < 0.0 ? -a : a; }
+static inline double dot3(const double *a, const double *b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
+static inline double len2_3(const double *a) { return a[0] * a[0] + a[1] * a[1] + a[2] * a[2]; }
+
+static int get_long(ErlNifEnv *env, ERL_NIF_TERM t, long *out) {
+    ErlNifSInt64 v;
+    if (!enif_get_int64(env, t, &v)) return 0;
+    *out = (long)v;
+    return 1;
+}
+
+/* #model{} with ccd false */
+static int get_model(ErlNifEnv *env, ERL_NIF_TERM term, struct model *m) {
+    const ERL_NIF_TERM *r;
+    int arity;
+    if (!enif_get_tuple(env, term, &arity, &r) || arity != 11 || !enif_is_identical(r[0], enif_make_atom(env, "model")))
+        return 0;
+    if (!enif_get_double(env, r[1], &m->dt) || !enif_get_double(env, r[3], &m->e) ||
+        !enif_get_double(env, r[8], &m->rest_speed) || !enif_get_double(env, r[9], &m->beta) ||
+        !enif_get_double(env, r[10], &m->slop))
+        return 0;
+    m->gravity = !enif_is_identical(r[2], atom_undefined);
+    if (m->gravity && !get_doubles(env, r[2], 3, m->g)) return 0;
+    m->friction = !enif_is_identical(r[4], atom_undefined);
+    if (m->friction && !enif_get_double(env, r[4], &m->mu)) return 0;
+    if (enif_is_identical(r[5], enif_make_atom(env, "true"))) m->rot = 1;
+    else if (enif_is_identical(r[5], enif_make_atom(env, "false"))) m->rot = 0;
+    else return 0;
+    if (enif_is_identical(r[6], atom_symplectic_euler)) m->integrator = 0;
+    else if (enif_is_identical(r[6], atom_explicit_euler)) m->integrator = 1;
+    else if (enif_is_identical(r[6], atom_verlet)) m->integrator = 2;
+    else return 0;
+    return enif_is_identical(r[7], enif_make_atom(env, "false"));
+}
+
+/* #sphere{idx, id, radius, mass, inv_mass, inv_inertia} */
+static int get_sphere(ErlNifEnv *env, ERL_NIF_TERM term, struct sphere *s) {
+    const ERL_NIF_TERM *r;
+    int arity;
+    return enif_get_tuple(env, term, &arity, &r) && arity == 7 && get_long(env, r[1], &s->idx) &&
+           enif_get_double(env, r[3], &s->r) && enif_get_double(env, r[5], &s->im) &&
+           enif_get_double(env, r[6], &s->ii);
+}
+
+/* #fixture{idx, id, shape, box}, any of rw_shape's static shapes */
+static int get_ifixture(ErlNifEnv *env, ERL_NIF_TERM term, struct ifixture *f) {
+    const ERL_NIF_TERM *rec, *shape;
+    int arity, sa;
+    if (!enif_get_tuple(env, term, &arity, &rec) || arity != 5 || !enif_is_identical(rec[0], atom_fixture) ||
+        !get_long(env, rec[1], &f->idx) || !enif_get_tuple(env, rec[3], &sa, &shape) || sa < 1)
+        return 0;
+    if (enif_is_identical(rec[4], atom_unbounded)) f->bounded = 0;
+    else if (get_doubles(env, rec[4], 6, f->box)) f->bounded = 1;
+    else return 0;
+    if (enif_is_identical(shape[0], atom_plane) && sa == 3) {
+        f->kind = K_PLANE;
+        return get_doubles(env, shape[1], 3, f->a) && enif_get_double(env, shape[2], &f->off);
+    }
+    if (enif_is_identical(shape[0], atom_box) && sa == 4) {
+        if (enif_is_identical(shape[3], atom_hollow)) f->kind = K_HOLLOW;
+        else if (enif_is_identical(shape[3], enif_make_atom(env, "solid"))) f->kind = K_SOLID;
+        else return 0;
+        return get_doubles(env, shape[1], 3, f->a) && get_doubles(env, shape[2], 3, f->b);
+    }
+    if (enif_is_identical(shape[0], enif_make_atom(env, "cylinder")) && sa == 5) {
+        f->kind = K_CYLINDER;
+        return get_doubles(env, shape[1], 3, f->a) && get_doubles(env, shape[2], 3, f->b) &&
+               enif_get_double(env, shape[3], &f->cr) && enif_get_double(env, shape[4], &f->h);
+    }
+    return 0;
+}
+
+/* rw_narrow:point_contact/3 */
+static int point_contact(const double *p, double r, const double *closest, struct contact *c) {
+    double d[3] = {closest[0] - p[0], closest[1] - p[1], closest[2] - p[2]};
+    double l2 = len2_3(d);
+    if (!(l2 < r * r)) return 0;
+    double l = sqrt(l2), s = 1.0 / l;
+    c->n[0] = d[0] * s; c->n[1] = d[1] * s; c->n[2] = d[2] * s;
+    c->depth = r - l;
+    return 1;
+}
+
+static void unit_axis(int axis, double s, double *out) {
+    out[0] = axis == 0 ? s : 0.0;
+    out[1] = axis == 1 ? s : 0.0;
+    out[2] = axis == 2 ? s : 0.0;
+}
+
+/*
+ * rw_narrow:fixture/3: the contacts of a sphere of radius r at p with f,
+ * in feature order, into c (up to 6) with their features; returns how
+ * many.
+ */
+static int fixture_contacts(const double *p, double r, const struct ifixture *f, struct contact *c, int *feature) {
+    if (f->bounded && (p[0] + r < f->box[0] || p[0] - r > f->box[3] || p[1] + r < f->box[1] || p[1] - r > f->box[4] ||
+                       p[2] + r < f->box[2] || p[2] - r > f->box[5]))
+        return 0;
+    switch (f->kind) {
+    case K_PLANE: {
+        double depth = r - (dot3(f->a, p) - f->off);
+        if (!(depth > 0.0)) return 0;
+        c[0].n[0] = -f->a[0]; c[0].n[1] = -f->a[1]; c[0].n[2] = -f->a[2];
+        c[0].depth = depth;
+        feature[0] = 0;
+        return 1;
+    }
+    case K_HOLLOW: {
+        const double *C = f->a, *E = f->b;
+        if (!(r - (p[0] - (C[0] - E[0])) > 0.0 || r - (-p[0] + (C[0] + E[0])) > 0.0 ||
+              r - (p[1] - (C[1] - E[1])) > 0.0 || r - (-p[1] + (C[1] + E[1])) > 0.0 ||
+              r - (p[2] - (C[2] - E[2])) > 0.0 || r - (-p[2] + (C[2] + E[2])) > 0.0))
+            return 0;
+        /* walls/4: each wall's plane, its normal into the box */
+        int k = 0;
+        for (int w = 0; w < 6; w++) {
+            int axis = w / 2;
+            double n[3], off;
+            if (w % 2 == 0) { unit_axis(axis, 1.0, n); off = C[axis] - E[axis]; }
+            else { unit_axis(axis, -1.0, n); off = -(C[axis] + E[axis]); }
+            double depth = r - (dot3(n, p) - off);
+            if (depth > 0.0) {
+                c[k].n[0] = -n[0]; c[k].n[1] = -n[1]; c[k].n[2] = -n[2];
+                c[k].depth = depth;
+                feature[k++] = w;
+            }
+        }
+        return k;
+    }
+    case K_SOLID: {
+        const double *C = f->a, *E = f->b;
+        double closest[3];
+        for (int i = 0; i < 3; i++) closest[i] = emax(C[i] - E[i], emin(C[i] + E[i], p[i]));
+        feature[0] = 0;
+        if (closest[0] == p[0] && closest[1] == p[1] && closest[2] == p[2]) {
+            /* centre inside: leave through the nearest face */
+            double rel[3] = {p[0] - C[0], p[1] - C[1], p[2] - C[2]};
+            double slack[3];
+            for (int i = 0; i < 3; i++) slack[i] = E[i] - eabs(rel[i]);
+            int best = 0;
+            for (int i = 1; i < 3; i++)
+                if (slack[i] < slack[best]) best = i;
+            unit_axis(best, rel[best] >= 0.0 ? -1.0 : 1.0, c[0].n);
+            c[0].depth = r + slack[best];
+            return 1;
+        }
+        return point_contact(p, r, closest, &c[0]);
+    }
+    case K_CYLINDER: {
+        const double *C = f->a, *axis = f->b;
+        double cr = f->cr, h = f->h;
+        double rel[3] = {p[0] - C[0], p[1] - C[1], p[2] - C[2]};
+        double h0 = dot3(rel, axis), mh0 = -h0;
+        double radial[3] = {rel[0] + axis[0] * mh0, rel[1] + axis[1] * mh0, rel[2] + axis[2] * mh0};
+        double rl = sqrt(len2_3(radial));
+        feature[0] = 0;
+        if (eabs(h0) <= h && rl <= cr) {
+            double side = cr - rl, cap = h - eabs(h0);
+            if (side < cap) {
+                if (rl > 1.0e-12 * emax(sqrt(len2_3(rel)), cr)) {
+                    double s = -1.0 / rl;
+                    c[0].n[0] = radial[0] * s; c[0].n[1] = radial[1] * s; c[0].n[2] = radial[2] * s;
+                } else {
+                    /* any_perpendicular/1 */
+                    double other[3] = {0.0, 0.0, 0.0};
+                    if (eabs(axis[0]) < 0.9) other[0] = 1.0; else other[1] = 1.0;
+                    double x[3] = {axis[1] * other[2] - axis[2] * other[1], axis[2] * other[0] - axis[0] * other[2],
+                                   axis[0] * other[1] - axis[1] * other[0]};
+                    double l = sqrt(len2_3(x));
+                    if (l > 0.0) {
+                        double s = 1.0 / l;
+                        x[0] = x[0] * s; x[1] = x[1] * s; x[2] = x[2] * s;
+                    }
+                    memcpy(c[0].n, x, sizeof x);
+                }
+                c[0].depth = r + side;
+            } else {
+                double s = h0 >= 0.0 ? -1.0 : 1.0;
+                c[0].n[0] = axis[0] * s; c[0].n[1] = axis[1] * s; c[0].n[2] = axis[2] * s;
+                c[0].depth = r + cap;
+            }
+            return 1;
+        }
+        if (rl > (cr + r) * (1.0 + 1.0e-9) || eabs(h0) > (h + r) * (1.0 + 1.0e-9)) return 0;
+        double hc = emax(-h, emin(h, h0));
+        double radc[3];
+        if (rl > cr) {
+            double s = cr / rl;
+            radc[0] = radial[0] * s; radc[1] = radial[1] * s; radc[2] = radial[2] * s;
+        } else {
+            memcpy(radc, radial, sizeof radc);
+        }
+        double closest[3];
+        for (int i = 0; i < 3; i++) closest[i] = (C[i] + axis[i] * hc) + radc[i];
+        return point_contact(p, r, closest, &c[0]);
+    }
+    }
+    return 0;
+}
+
+/*
+ * rw_response:normal_friction/11: the impulse j on A and the
+ * pseudo-impulse *ub (*has_ub: whether anything penetrates).
+ */
+static void normal_friction(const struct model *m, const double *rel, const double *n, double k, double krot,
+                            double depth, double *j, double *ub, int *has_ub) {
+    double vn = rel[0] * n[0] + rel[1] * n[1] + rel[2] * n[2];
+    double jn = 0.0;
+    if (vn < 0.0) {
+        double bounce = -vn > m->rest_speed ? m->e : 0.0;
+        jn = -(1.0 + bounce) * vn / k;
+    }
+    double pen = depth - m->slop;
+    *has_ub = pen > 0.0;
+    if (*has_ub) *ub = m->beta * pen / m->dt / k;
+    double mjn = -jn;
+    j[0] = n[0] * mjn; j[1] = n[1] * mjn; j[2] = n[2] * mjn;
+    if (m->friction && jn > 0.0) {
+        double mvn = -vn;
+        double t[3] = {rel[0] + n[0] * mvn, rel[1] + n[1] * mvn, rel[2] + n[2] * mvn};
+        double lt = sqrt(t[0] * t[0] + t[1] * t[1] + t[2] * t[2]);
+        if (lt > 1.0e-12) {
+            double kt = m->rot ? k + krot : k;
+            double s = emin(lt / kt, m->mu * jn) / lt;
+            j[0] = j[0] + t[0] * s; j[1] = j[1] + t[1] * s; j[2] = j[2] + t[2] * s;
+        }
+    }
+}
+
+/* rw_response:side/11 without a time of impact (toi 0.0) */
+static void side(const double *j, const double *arm, double im, double arm_scale, int has_ub, double ub,
+                 const double *n, int rot, struct effect *e) {
+    e->dv[0] = j[0] * im; e->dv[1] = j[1] * im; e->dv[2] = j[2] * im;
+    if (rot) { e->dw[0] = arm[0] * arm_scale; e->dw[1] = arm[1] * arm_scale; e->dw[2] = arm[2] * arm_scale; }
+    if (has_ub) {
+        double s = -ub * im;
+        e->du[0] = n[0] * s; e->du[1] = n[1] * s; e->du[2] = n[2] * s;
+    } else {
+        e->du[0] = 0.0; e->du[1] = 0.0; e->du[2] = 0.0;
+    }
+}
+
+static void arm_of(const double *n, const double *j, double *arm) {
+    arm[0] = n[1] * j[2] - n[2] * j[1];
+    arm[1] = n[2] * j[0] - n[0] * j[2];
+    arm[2] = n[0] * j[1] - n[1] * j[0];
+}
+
+/* rw_response:fixture/4 (toi 0.0) */
+static void fixture_response(const struct model *m, const struct sphere *s, const double *v, const double *w,
+                             const struct contact *c, struct effect *e) {
+    double gv[3];
+    if (m->gravity) {
+        gv[0] = v[0] + m->g[0] * m->dt; gv[1] = v[1] + m->g[1] * m->dt; gv[2] = v[2] + m->g[2] * m->dt;
+    } else {
+        memcpy(gv, v, sizeof gv);
+    }
+    const double *n = c->n;
+    double rel[3];
+    if (m->rot) {
+        double a[3] = {n[0] * s->r, n[1] * s->r, n[2] * s->r};
+        rel[0] = 0.0 - (gv[0] + (w[1] * a[2] - w[2] * a[1]));
+        rel[1] = 0.0 - (gv[1] + (w[2] * a[0] - w[0] * a[2]));
+        rel[2] = 0.0 - (gv[2] + (w[0] * a[1] - w[1] * a[0]));
+    } else {
+        rel[0] = 0.0 - gv[0]; rel[1] = 0.0 - gv[1]; rel[2] = 0.0 - gv[2];
+    }
+    double j[3], ub = 0.0, arm[3] = {0.0, 0.0, 0.0};
+    int has_ub;
+    normal_friction(m, rel, n, s->im + 0.0, s->r * s->r * s->ii + 0.0, c->depth, j, &ub, &has_ub);
+    if (m->rot) arm_of(n, j, arm);
+    side(j, arm, s->im, s->r * s->ii, has_ub, ub, n, m->rot, e);
+}
+
+/* rw_response:pair/6: the effects on A and B */
+static void pair_response(const struct model *m, const struct sphere *sa, const double *va, const double *wa,
+                          const struct sphere *sb, const double *vb, const double *wb, const struct contact *c,
+                          struct effect *ea, struct effect *eb) {
+    const double *n = c->n;
+    double rel[3];
+    if (m->rot) {
+        double a[3] = {n[0] * sa->r, n[1] * sa->r, n[2] * sa->r};
+        double nrb = -sb->r;
+        double b[3] = {n[0] * nrb, n[1] * nrb, n[2] * nrb};
+        rel[0] = (vb[0] + (wb[1] * b[2] - wb[2] * b[1])) - (va[0] + (wa[1] * a[2] - wa[2] * a[1]));
+        rel[1] = (vb[1] + (wb[2] * b[0] - wb[0] * b[2])) - (va[1] + (wa[2] * a[0] - wa[0] * a[2]));
+        rel[2] = (vb[2] + (wb[0] * b[1] - wb[1] * b[0])) - (va[2] + (wa[0] * a[1] - wa[1] * a[0]));
+    } else {
+        rel[0] = vb[0] - va[0]; rel[1] = vb[1] - va[1]; rel[2] = vb[2] - va[2];
+    }
+    double j[3], ub = 0.0, arm[3] = {0.0, 0.0, 0.0};
+    int has_ub;
+    normal_friction(m, rel, n, sa->im + sb->im, sa->r * sa->r * sa->ii + sb->r * sb->r * sb->ii, c->depth, j, &ub,
+                    &has_ub);
+    if (m->rot) arm_of(n, j, arm);
+    side(j, arm, sa->im, sa->r * sa->ii, has_ub, ub, n, m->rot, ea);
+    side(j, arm, -sb->im, sb->r * sb->ii, has_ub, ub, n, m->rot, eb);
+}
+
+/* rw_narrow:sphere_sphere/4 */
+static int sphere_sphere(const double *pa, double ra, const double *pb, double rb, struct contact *c) {
+    double d[3] = {pb[0] - pa[0], pb[1] - pa[1], pb[2] - pa[2]};
+    double sum = ra + rb;
+    double l2 = len2_3(d);
+    if (!(l2 < sum * sum)) return 0;
+    double l = sqrt(l2);
+    if (l > 0.0) {
+        double s = 1.0 / l;
+        c->n[0] = d[0] * s; c->n[1] = d[1] * s; c->n[2] = d[2] * s;
+    } else {
+        c->n[0] = 0.0; c->n[1] = 1.0; c->n[2] = 0.0;
+    }
+    c->depth = sum - l;
+    return 1;
+}
+
+/* Key order of rw_island:merge/2 and lists:sort/1: {Idx, Feature}. */
+static inline int key_less(const struct effect *a, const struct effect *b) {
+    return a->key < b->key || (a->key == b->key && a->feature < b->feature);
+}
+
+/* A member's state. */
+struct mstate { double p[3], v[3], q[4], w[3]; };
+
+/* rw_quat:integrate/3 */
+static void quat_integrate(const double *q, const double *o, double dt, double *out) {
+    if (o[0] == 0.0 && o[1] == 0.0 && o[2] == 0.0) { memcpy(out, q, 4 * sizeof *q); return; }
+    double X = q[0], Y = q[1], Z = q[2], W = q[3], ox = o[0], oy = o[1], oz = o[2];
+    double dX = (X * 0.0 + ox * W) + (oy * Z - oz * Y);
+    double dY = (Y * 0.0 + oy * W) + (oz * X - ox * Z);
+    double dZ = (Z * 0.0 + oz * W) + (ox * Y - oy * X);
+    double dW = 0.0 * W - (ox * X + oy * Y + oz * Z);
+    double h = 0.5 * dt;
+    double X1 = X + dX * h, Y1 = Y + dY * h, Z1 = Z + dZ * h, W1 = W + dW * h;
+    double l = sqrt(X1 * X1 + Y1 * Y1 + Z1 * Z1 + W1 * W1);
+    if (l > 0.0) {
+        double s = 1.0 / l;
+        out[0] = X1 * s; out[1] = Y1 * s; out[2] = Z1 * s; out[3] = W1 / l;
+    } else {
+        out[0] = X1; out[1] = Y1; out[2] = Z1; out[3] = W1;
+    }
+}
+
+/* rw_integrate:advance/5 */
+static void advance(const struct model *m, const struct mstate *st, const double *v, const double *w,
+                    const double *u, struct mstate *out) {
+    int u_zero = u[0] == 0.0 && u[1] == 0.0 && u[2] == 0.0;
+    double vu[3];
+    for (int i = 0; i < 3; i++) vu[i] = u_zero ? v[i] : v[i] + u[i];
+    double dt = m->dt;
+    if (!m->gravity) {
+        for (int i = 0; i < 3; i++) { out->p[i] = st->p[i] + vu[i] * dt; out->v[i] = v[i]; }
+    } else {
+        double v1[3];
+        for (int i = 0; i < 3; i++) v1[i] = v[i] + m->g[i] * dt;
+        if (m->integrator == 0) {
+            for (int i = 0; i < 3; i++) out->p[i] = st->p[i] + (u_zero ? v1[i] : v1[i] + u[i]) * dt;
+        } else if (m->integrator == 1) {
+            for (int i = 0; i < 3; i++) out->p[i] = st->p[i] + vu[i] * dt;
+        } else {
+            double hh = 0.5 * dt * dt;
+            for (int i = 0; i < 3; i++) out->p[i] = (st->p[i] + vu[i] * dt) + m->g[i] * hh;
+        }
+        memcpy(out->v, v1, sizeof v1);
+    }
+    if (m->rot) {
+        quat_integrate(st->q, w, dt, out->q);
+        memcpy(out->w, w, 3 * sizeof *w);
+    }
+}
+
+/* #st{p, v, q, w} */
+static int get_mstate(ErlNifEnv *env, ERL_NIF_TERM term, int rot, struct mstate *s) {
+    const ERL_NIF_TERM *r, *q;
+    int arity, qa;
+    if (!enif_get_tuple(env, term, &arity, &r) || arity != 5 || !get_doubles(env, r[1], 3, s->p) ||
+        !get_doubles(env, r[2], 3, s->v))
+        return 0;
+    if (!rot) return enif_is_identical(r[3], atom_undefined) && enif_is_identical(r[4], atom_undefined);
+    return enif_get_tuple(env, r[3], &qa, &q) && qa == 2 && get_doubles(env, q[0], 3, s->q) &&
+           enif_get_double(env, q[1], &s->q[3]) && get_doubles(env, r[4], 3, s->w);
+}
+
+static ERL_NIF_TERM make_mstate(ErlNifEnv *env, ERL_NIF_TERM st_atom, const struct mstate *s, int rot) {
+    ERL_NIF_TERM q = atom_undefined, w = atom_undefined;
+    if (rot) {
+        q = enif_make_tuple2(env, make_doubles(env, s->q, 3), enif_make_double(env, s->q[3]));
+        w = make_doubles(env, s->w, 3);
+    }
+    return enif_make_tuple5(env, st_atom, make_doubles(env, s->p, 3), make_doubles(env, s->v, 3), q, w);
+}
+
+/* The working memory of one call. */
+struct island {
+    struct model m;
+    int n, nf;
+    struct sphere *s;
+    struct ifixture *f;
+    struct mstate *st, *next;
+    double *seen;         /* per member: v (3) and w (3) after its fixture contacts */
+    size_t *fixed_start;  /* per member: its fixture effects in fixed */
+    size_t *fixed_n;
+    struct effects fixed, pairs;
+    size_t *pair_start, *pair_n; /* per member: its pair effects, sorted, in sorted */
+    struct effect *sorted;
+    size_t sorted_cap;
+    /* the neighbour list: anchors, limit and pairs */
+    double *anchor;
+    double limit;
+    int listed; /* 0: every pair is tested */
+    int *pairs_ab;
+    size_t npairs, pairs_cap;
+};
+
+/* Pairs that may touch while every member stays within limit of its
+   anchor, relative to the first member's move (rw_island's list,
+   the same bounds; any valid list finds the contacts that a test of
+   every pair finds). */
+static int build_list(struct island *is) {
+    int n = is->n;
+    double rmax = 0.0, scale = 0.0;
+    for (int k = 0; k < n; k++) {
+        if (k == 0 || is->s[k].r > rmax) rmax = is->s[k].r;
+        memcpy(&is->anchor[3 * k], is->st[k].p, 3 * sizeof(double));
+        for (int i = 0; i < 3; i++) {
+            double a = eabs(is->st[k].p[i]);
+            if ((k == 0 && i == 0) || a > scale) scale = a;
+        }
+    }
+    double skin = 0.5 * rmax;
+    scale = scale + rmax + skin;
+    is->limit = 0.5 * skin - 1.0e-9 * scale;
+    is->listed = is->limit > 0.0;
+    is->npairs = 0;
+    if (!is->listed) return 1;
+    for (int a = 0; a < n; a++)
+        for (int b = a + 1; b < n; b++) {
+            const double *pa = is->st[a].p, *pb = is->st[b].p;
+            double d[3] = {pb[0] - pa[0], pb[1] - pa[1], pb[2] - pa[2]};
+            double reach = is->s[a].r + is->s[b].r + skin;
+            if (len2_3(d) < reach * reach) {
+                if (is->npairs == is->pairs_cap) {
+                    size_t cap = is->pairs_cap ? 2 * is->pairs_cap : 256;
+                    int *p = enif_realloc(is->pairs_ab, 2 * cap * sizeof *p);
+                    if (!p) return 0;
+                    is->pairs_ab = p;
+                    is->pairs_cap = cap;
+                }
+                is->pairs_ab[2 * is->npairs] = a;
+                is->pairs_ab[2 * is->npairs + 1] = b;
+                is->npairs++;
+            }
+        }
+    return 1;
+}
+
+static int list_valid(const struct island *is) {
+    if (!is->listed) return 0;
+    double drift[3];
+    for (int i = 0; i < 3; i++) drift[i] = is->st[0].p[i] - is->anchor[i];
+    double l2 = is->limit * is->limit;
+    for (int k = 0; k < is->n; k++) {
+        double d[3];
+        for (int i = 0; i < 3; i++) d[i] = (is->st[k].p[i] - is->anchor[3 * k + i]) - drift[i];
+        if (!(len2_3(d) <= l2)) return 0;
+    }
+    return 1;
+}
+
+static int pair_contact(struct island *is, int a, int b) {
+    struct contact c;
+    if (!sphere_sphere(is->st[a].p, is->s[a].r, is->st[b].p, is->s[b].r, &c)) return 1;
+    struct effect *ea = effects_add(&is->pairs);
+    if (!ea) return 0;
+    struct effect *eb = effects_add(&is->pairs);
+    if (!eb) return 0;
+    ea = eb - 1;
+    pair_response(&is->m, &is->s[a], &is->seen[6 * a], &is->seen[6 * a + 3], &is->s[b], &is->seen[6 * b],
+                  &is->seen[6 * b + 3], &c, ea, eb);
+    /* (the member each belongs to, in feature until sorted) */
+    ea->key = is->s[b].idx; ea->feature = a;
+    eb->key = is->s[a].idx; eb->feature = b;
+    return 1;
+}
+
+/* One substep: is->next from is->st. 0: out of memory. */
+static int island_substep(struct island *is) {
+    const struct model *m = &is->m;
+    int n = is->n;
+    is->fixed.n = 0;
+    is->pairs.n = 0;
+    for (int k = 0; k < n; k++) {
+        const struct sphere *s = &is->s[k];
+        const struct mstate *st = &is->st[k];
+        double v[3], w[3] = {0.0, 0.0, 0.0};
+        memcpy(v, st->v, sizeof v);
+        if (m->rot) memcpy(w, st->w, sizeof w);
+        is->fixed_start[k] = is->fixed.n;
+        /* every contact first (from the position alone), then their
+           effects in turn, each on the velocities the ones before left */
+        struct contact cs[6];
+        int features[6];
+        for (int fi = 0; fi < is->nf; fi++) {
+            int nc = fixture_contacts(st->p, s->r, &is->f[fi], cs, features);
+            for (int ci = 0; ci < nc; ci++) {
+                struct effect *e = effects_add(&is->fixed);
+                if (!e) return 0;
+                e->key = is->f[fi].idx;
+                e->feature = features[ci];
+                memcpy(e->du, cs[ci].n, sizeof e->du); /* (the contact, until all are found) */
+                e->dv[0] = cs[ci].depth;
+            }
+        }
+        is->fixed_n[k] = is->fixed.n - is->fixed_start[k];
+        for (size_t i = 0; i < is->fixed_n[k]; i++) {
+            struct effect *e = &is->fixed.e[is->fixed_start[k] + i];
+            struct contact c;
+            memcpy(c.n, e->du, sizeof c.n);
+            c.depth = e->dv[0];
+            fixture_response(m, s, v, w, &c, e);
+            for (int j = 0; j < 3; j++) v[j] = v[j] + e->dv[j];
+            if (m->rot) for (int j = 0; j < 3; j++) w[j] = w[j] + e->dw[j];
+        }
+        memcpy(&is->seen[6 * k], v, sizeof v);
+        memcpy(&is->seen[6 * k + 3], w, sizeof w);
+    }
+    /* contacts among members */
+    if (!is->listed || !list_valid(is)) {
+        if (!build_list(is)) return 0;
+    }
+    if (is->listed) {
+        for (size_t i = 0; i < is->npairs; i++)
+            if (!pair_contact(is, is->pairs_ab[2 * i], is->pairs_ab[2 * i + 1])) return 0;
+    } else {
+        for (int a = 0; a < n; a++)
+            for (int b = a + 1; b < n; b++)
+                if (!pair_contact(is, a, b)) return 0;
+    }
+    /* each member's pair effects, sorted by key */
+    if (is->pairs.n > is->sorted_cap) {
+        struct effect *e = enif_realloc(is->sorted, is->pairs.n * sizeof *e);
+        if (!e) return 0;
+        is->sorted = e;
+        is->sorted_cap = is->pairs.n;
+    }
+    for (int k = 0; k < n; k++) is->pair_n[k] = 0;
+    for (size_t i = 0; i < is->pairs.n; i++) is->pair_n[is->pairs.e[i].feature]++;
+    size_t at = 0;
+    for (int k = 0; k < n; k++) { is->pair_start[k] = at; at += is->pair_n[k]; is->pair_n[k] = 0; }
+    for (size_t i = 0; i < is->pairs.n; i++) {
+        struct effect e = is->pairs.e[i];
+        long k = e.feature;
+        e.feature = 0;
+        /* insertion into the member's sorted run */
+        struct effect *run = &is->sorted[is->pair_start[k]];
+        size_t j = is->pair_n[k]++;
+        while (j > 0 && key_less(&e, &run[j - 1])) { run[j] = run[j - 1]; j--; }
+        run[j] = e;
+    }
+    /* the sum in key order, and the next state */
+    for (int k = 0; k < n; k++) {
+        const struct mstate *st = &is->st[k];
+        double v[3], w[3] = {0.0, 0.0, 0.0}, u[3] = {0.0, 0.0, 0.0};
+        memcpy(v, st->v, sizeof v);
+        if (m->rot) memcpy(w, st->w, sizeof w);
+        const struct effect *fa = &is->fixed.e[is->fixed_start[k]], *pa = &is->sorted[is->pair_start[k]];
+        size_t nfa = is->fixed_n[k], npa = is->pair_n[k], i = 0, j = 0;
+        while (i < nfa || j < npa) {
+            const struct effect *e;
+            if (i < nfa && j < npa) e = key_less(&fa[i], &pa[j]) ? &fa[i++] : &pa[j++];
+            else if (i < nfa) e = &fa[i++];
+            else e = &pa[j++];
+            for (int c = 0; c < 3; c++) v[c] = v[c] + e->dv[c];
+            if (m->rot) for (int c = 0; c < 3; c++) w[c] = w[c] + e->dw[c];
+            for (int c = 0; c < 3; c++) u[c] = u[c] + e->du[c];
+        }
+        advance(m, st, v, w, u, &is->next[k]);
+    }
+    return 1;
+}
+
+static void island_free(struct island *is) {
+    enif_free(is->s); enif_free(is->f); enif_free(is->st); enif_free(is->next); enif_free(is->seen);
+    enif_free(is->fixed_start); enif_free(is->fixed_n); enif_free(is->pair_start); enif_free(is->pair_n);
+    enif_free(is->fixed.e); enif_free(is->pairs.e); enif_free(is->sorted); enif_free(is->anchor);
+    enif_free(is->pairs_ab);
+}
+
+/*
+ * island_run(T, Stop, DtT, Model, Spheres, Fixtures, States)
+ *
+ * Model a #model{} without CCD, Spheres the members' #sphere{} (a tuple,
+ * ascending idx), Fixtures the scene's #fixture{} list, States their #st{}
+ * at T (a tuple). Steps every substep from T while T < Stop (none of them
+ * a sync point, the group's start or a substep with contacts from
+ * outside: the caller's to know), at most MAX_ISLAND_WORK member-substeps,
+ * and returns {T1, States1, Bins}: the time reached, the states there and
+ * per member its states after T up to T1 (rw_states' layout); or fallback.
+ */
+static ERL_NIF_TERM island_run(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[]) {
+    ErlNifSInt64 t, stop, dtt;
+    const ERL_NIF_TERM *spheres, *states;
+    int n, ns;
+    unsigned nf;
+    struct island is;
+    ERL_NIF_TERM result = atom_fallback, list, head;
+    (void)argc;
+    memset(&is, 0, sizeof is);
+    if (!enif_get_int64(env, argv[0], &t) || !enif_get_int64(env, argv[1], &stop) ||
+        !enif_get_int64(env, argv[2], &dtt) || dtt <= 0 || !get_model(env, argv[3], &is.m) ||
+        !enif_get_tuple(env, argv[4], &n, &spheres) || n < 1 || !enif_get_list_length(env, argv[5], &nf) ||
+        !enif_get_tuple(env, argv[6], &ns, &states) || ns != n)
+        return atom_fallback;
+    is.n = n;
+    is.nf = (int)nf;
+    is.s = enif_alloc(n * sizeof *is.s);
+    is.f = enif_alloc((nf ? nf : 1) * sizeof *is.f);
+    is.st = enif_alloc(n * sizeof *is.st);
+    is.next = enif_alloc(n * sizeof *is.next);
+    is.seen = enif_alloc(6 * n * sizeof *is.seen);
+    is.fixed_start = enif_alloc(n * sizeof(size_t));
+    is.fixed_n = enif_alloc(n * sizeof(size_t));
+    is.pair_start = enif_alloc(n * sizeof(size_t));
+    is.pair_n = enif_alloc(n * sizeof(size_t));
+    is.anchor = enif_alloc(3 * n * sizeof(double));
+    ErlNifBinary *bins = enif_alloc(n * sizeof *bins);
+    int nbins = 0;
+    if (!is.s || !is.f || !is.st || !is.next || !is.seen || !is.fixed_start || !is.fixed_n || !is.pair_start ||
+        !is.pair_n || !is.anchor || !bins)
+        goto done;
+    for (int k = 0; k < n; k++)
+        if (!get_sphere(env, spheres[k], &is.s[k]) || !get_mstate(env, states[k], is.m.rot, &is.st[k])) goto done;
+    list = argv[5];
+    for (unsigned i = 0; i < nf; i++)
+        if (!enif_get_list_cell(env, list, &head, &list) || !get_ifixture(env, head, &is.f[i])) goto done;
+
+    ErlNifSInt64 max = t < stop ? (stop - t + dtt - 1) / dtt : 0;
+    if (max * n > MAX_ISLAND_WORK) max = MAX_ISLAND_WORK / n > 0 ? MAX_ISLAND_WORK / n : 1;
+    size_t record = is.m.rot ? 13 * 8 : 6 * 8;
+    for (; nbins < n; nbins++)
+        if (!enif_alloc_binary(max * record, &bins[nbins])) goto done;
+
+    ErlNifSInt64 steps = 0;
+    feclearexcept(FE_ALL_EXCEPT);
+    while (steps < max) {
+        if (!island_substep(&is)) goto done;
+        if (fetestexcept(BAD_FLAGS)) break;
+        for (int k = 0; k < n; k++) {
+            unsigned char *out = bins[k].data + steps * record;
+            const struct mstate *s = &is.next[k];
+            for (int i = 0; i < 3; i++) put_double(out + 8 * i, s->p[i]);
+            for (int i = 0; i < 3; i++) put_double(out + 24 + 8 * i, s->v[i]);
+            if (is.m.rot) {
+                for (int i = 0; i < 4; i++) put_double(out + 48 + 8 * i, s->q[i]);
+                for (int i = 0; i < 3; i++) put_double(out + 80 + 8 * i, s->w[i]);
+            }
+        }
+        struct mstate *swap = is.st;
+        is.st = is.next;
+        is.next = swap;
+        steps++;
+        t += dtt;
+    }
+    feclearexcept(FE_ALL_EXCEPT);
+    {
+        ERL_NIF_TERM st_atom = enif_make_atom(env, "st");
+        ERL_NIF_TERM *terms = enif_alloc(n * sizeof *terms);
+        if (!terms) goto done;
+        ERL_NIF_TERM out_bins = enif_make_list(env, 0);
+        for (int k = n - 1; k >= 0; k--) {
+            if (!enif_realloc_binary(&bins[k], steps * record)) { enif_free(terms); goto done; }
+            out_bins = enif_make_list_cell(env, enif_make_binary(env, &bins[k]), out_bins);
+            nbins--;
+        }
+        for (int k = 0; k < n; k++) terms[k] = make_mstate(env, st_atom, &is.st[k], is.m.rot);
+        result = enif_make_tuple3(env, enif_make_int64(env, t), enif_make_tuple_from_array(env, terms, n), out_bins);
+        enif_free(terms);
+    }
+done:
+    for (int k = 0; k < nbins; k++) enif_release_binary(&bins[k]);
+    enif_free(bins);
+    island_free(&is);
+    return result;
+}
+
 static ErlNifFunc funcs[] = {
     {"free_run", 13, free_run, 0},
     {"first_touch", 10, first_touch, 0},
+    {"island_run", 7, island_run, 0},
 };
 
 ERL_NIF_INIT(rw_native, funcs, load, NULL, upgrade, NULL)

@@ -45,8 +45,14 @@ run(T, {St}, Last, {#model{ccd = false, rotation = Rot}, _, Base, TL, Cal} = Ctx
     end;
 run(T, {St}, Last, Ctx, Island0) ->
     run_each(T, St, Last, Ctx, Island0);
-run(T, States, Last, {#model{rotation = Rot, ccd = Ccd}, _, _, _, _} = Ctx, Island0) ->
-    {Passed, Bins, Island} = chain(T, States, Last, Ctx, Island0, [], [<<>> || _ <- tuple_to_list(States)]),
+run(T, States, Last, {#model{rotation = Rot, ccd = Ccd}, _, Base, TL, _} = Ctx, Island0) ->
+    %% the substeps the C loop leaves to the island: the group's start and
+    %% known contacts with the outside (and sync points)
+    Native = case Ccd =:= false andalso rw_native:enabled() of
+                 true -> lists:usort([TB || {TB, _} <- [Base], TB >= T, TB < Last] ++ rw_timeline:contact_times(T, Last, TL));
+                 false -> false
+             end,
+    {Passed, Bins, Island} = chain(T, States, Last, Ctx, Island0, [], [<<>> || _ <- tuple_to_list(States)], Native),
     {Passed, [rw_states:seal(Bin, Rot, Ccd) || Bin <- Bins], Island}.
 
 %% A body on its own, stepped substep by substep through its island: what
@@ -241,9 +247,25 @@ append(Bin, X, Y, Z, VX, VY, VZ, {{QX, QY, QZ}, QW}, {WX, WY, WZ}) ->
     <<Bin/binary, X:64/float, Y:64/float, Z:64/float, VX:64/float, VY:64/float, VZ:64/float,
       QX:64/float, QY:64/float, QZ:64/float, QW:64/float, WX:64/float, WY:64/float, WZ:64/float>>.
 
-chain(T, _States, Last, _Ctx, Island, Passed, Bins) when T >= Last ->
+chain(T, _States, Last, _Ctx, Island, Passed, Bins, _Native) when T >= Last ->
     {lists:reverse(Passed), Bins, Island};
-chain(T, States, Last, {M, Dt, Base, TL, Cal} = Ctx, Island, Passed, Bins) ->
+chain(T, States, Last, Ctx, Island, Passed, Bins, [B | Busy]) when B < T ->
+    chain(T, States, Last, Ctx, Island, Passed, Bins, Busy);
+chain(T, States, Last, {M, Dt, _, _, Cal} = Ctx, Island, Passed, Bins, Busy) when is_list(Busy) ->
+    %% the C loop up to the next substep it leaves to the island
+    Stop = lists:min([Last | [S || S <- [rw_sync:next_at(T, Cal) | lists:sublist(Busy, 1)], is_integer(S)]]),
+    case Stop > T andalso rw_native:island_run(T, Stop, Dt, M, element(2, rw_island:bodies(Island)),
+                                              element(3, rw_island:bodies(Island)), States) of
+        {T1, Next, New} when T1 > T ->
+            chain(T1, Next, Last, Ctx, Island, Passed, append_all(Bins, New), Busy);
+        _ ->
+            chain_one(T, States, Last, Ctx, Island, Passed, Bins, Busy)
+    end;
+chain(T, States, Last, Ctx, Island, Passed, Bins, Native) ->
+    chain_one(T, States, Last, Ctx, Island, Passed, Bins, Native).
+
+%% One substep of chain/8, through the island.
+chain_one(T, States, Last, {M, Dt, Base, TL, Cal} = Ctx, Island, Passed, Bins, Native) ->
     {Posts, Next, Island1} =
         case Base of
             {T, BasePosts} -> {BasePosts, rw_island:advance(M, States, BasePosts), Island};
@@ -253,4 +275,7 @@ chain(T, States, Last, {M, Dt, Base, TL, Cal} = Ctx, Island, Passed, Bins) ->
                   true -> [{T, States, Posts} | Passed];
                   false -> Passed
               end,
-    chain(T + Dt, Next, Last, Ctx, Island1, Passed1, add_all(1, Next, Bins, M)).
+    chain(T + Dt, Next, Last, Ctx, Island1, Passed1, add_all(1, Next, Bins, M), Native).
+
+append_all([Bin | Bins], [New | News]) -> [<<Bin/binary, New/binary>> | append_all(Bins, News)];
+append_all([], []) -> [].

@@ -8,7 +8,7 @@
 %% escript copied away from its build) enabled/0 says so, the callers run
 %% the Erlang code alone, slower and with the same results.
 -module(rw_native).
--export([free_run/13, first_touch/10, loaded/0, enabled/0, use/1, library/0, library_variable/0]).
+-export([free_run/13, first_touch/10, island_run/7, loaded/0, enabled/0, use/1, library/0, library_variable/0]).
 -on_load(init/0).
 
 %% the library's file, or none
@@ -99,4 +99,17 @@ free_run(_T, _Last, _DtT, _Dt, _Sync, _Busy, _Zone, _Gravity, _Integrator, _Stat
 -spec first_touch(binary(), pos_integer(), pos_integer(), binary(), pos_integer(), pos_integer(),
                   non_neg_integer(), float(), float(), float() | undefined) -> non_neg_integer() | none | fallback.
 first_touch(_BinA, _SizeA, _IA, _BinB, _SizeB, _IB, _Left, _Sum, _Margin, _Reach) ->
+    erlang:nif_error(not_loaded).
+
+%% A contact group's substeps (rw_island:step/3 without CCD and with no
+%% contact from outside) from T while T < Stop, none of them a sync point
+%% or the group's start: Model, the members' Spheres (ascending idx), the
+%% scene's Fixtures and the members' States at T. Returns the time and
+%% states reached and per member the states after T up to there
+%% (rw_states' layout), or fallback. It may stop short of Stop (at most
+%% some thousand member-substeps a call, or before a substep where the
+%% Erlang code would raise).
+-spec island_run(non_neg_integer(), non_neg_integer(), pos_integer(), tuple(), tuple(), list(), tuple()) ->
+          {non_neg_integer(), tuple(), [binary()]} | fallback.
+island_run(_T, _Stop, _DtT, _Model, _Spheres, _Fixtures, _States) ->
     erlang:nif_error(not_loaded).

@@ -25,7 +25,7 @@
 %% anchor, not the six walls, at each substep.
 -module(rw_island).
 -include("rw_physics.hrl").
--export([new/3, size/1, posts/3, step/3, post/3, advance/3, free_zone/1, near_zone/1, touches_no_fixture/4]).
+-export([new/3, size/1, bodies/1, posts/3, step/3, post/3, advance/3, free_zone/1, near_zone/1, touches_no_fixture/4]).
 -export_type([island/0, external/0]).
 -include("rw_vec_inline.hrl").
 
@@ -69,6 +69,11 @@ new(Model, Spheres0, Fixtures) ->
 
 -spec size(island()) -> pos_integer().
 size(#island{spheres = S}) -> tuple_size(S).
+
+%% The model, the members (ascending idx) and the fixtures: what step/3
+%% steps, for the engine's C loop (rw_native), which steps the same.
+-spec bodies(island()) -> {#model{}, tuple(), [#fixture{}]}.
+bodies(#island{model = M, spheres = S, fixtures = F}) -> {M, S, F}.
 
 %% Post-response velocities ({V, W, U}, as rw_dynamics:respond/2) of every
 %% member at this substep, from their pre-response States (a tuple in idx
