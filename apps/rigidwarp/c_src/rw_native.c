@@ -1086,15 +1086,17 @@ static void island_free(struct island *is) {
 }
 
 /*
- * island_run(T, Stop, DtT, Model, Spheres, Fixtures, States)
+ * island_run(T, Stop, DtT, Model, Spheres, Fixtures, States, Acc)
  *
  * Model a #model{} without CCD, Spheres the members' #sphere{} (a tuple,
  * ascending idx), Fixtures the scene's #fixture{} list, States their #st{}
  * at T (a tuple). Steps every substep from T while T < Stop (none of them
  * a sync point, the group's start or a substep with contacts from
  * outside: the caller's to know), at most MAX_ISLAND_WORK member-substeps,
- * and returns {T1, States1, Bins}: the time reached, the states there and
- * per member its states after T up to T1 (rw_states' layout); or fallback.
+ * and returns {T1, States1, Bins, Acc1}: the time reached, the states
+ * there, per member its states after T up to T1 (rw_states' layout) and
+ * Acc: none, or for a body alone {First, Box, Reach} measured over its
+ * states as free_run/13 measures them; or fallback.
  */
 static ERL_NIF_TERM island_run(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[]) {
     ErlNifSInt64 t, stop, dtt;
@@ -1110,6 +1112,17 @@ static ERL_NIF_TERM island_run(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv
         !enif_get_tuple(env, argv[4], &n, &spheres) || n < 1 || !enif_get_list_length(env, argv[5], &nf) ||
         !enif_get_tuple(env, argv[6], &ns, &states) || ns != n)
         return atom_fallback;
+    int measured = !enif_is_identical(argv[7], atom_none), first = 0;
+    double box[6], reach = 0.0;
+    if (measured) {
+        const ERL_NIF_TERM *acc;
+        int aa;
+        if (n != 1 || !enif_get_tuple(env, argv[7], &aa, &acc) || aa != 3 || !get_doubles(env, acc[1], 6, box) ||
+            !enif_get_double(env, acc[2], &reach))
+            return atom_fallback;
+        if (enif_is_identical(acc[0], atom_some)) first = 1;
+        else if (!enif_is_identical(acc[0], atom_none)) return atom_fallback;
+    }
     is.n = n;
     is.nf = (int)nf;
     is.s = enif_alloc(n * sizeof *is.s);
@@ -1143,7 +1156,24 @@ static ERL_NIF_TERM island_run(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv
     feclearexcept(FE_ALL_EXCEPT);
     while (steps < max) {
         if (!island_substep(&is)) goto done;
+        double step = 0.0;
+        const double *np = is.next[0].p, *op = is.st[0].p;
+        if (measured && first) step = (eabs(np[0] - op[0]) + eabs(np[1] - op[1])) + eabs(np[2] - op[2]);
         if (fetestexcept(BAD_FLAGS)) break;
+        if (measured) {
+            if (!first) {
+                /* the first state: the box is its position, the reach 0 */
+                first = 1;
+                for (int i = 0; i < 3; i++) { box[i] = np[i]; box[3 + i] = np[i]; }
+                reach = 0.0;
+            } else {
+                for (int i = 0; i < 3; i++) {
+                    if (np[i] < box[i]) box[i] = np[i];
+                    if (np[i] > box[3 + i]) box[3 + i] = np[i];
+                }
+                if (step > reach) reach = step;
+            }
+        }
         for (int k = 0; k < n; k++) {
             unsigned char *out = bins[k].data + steps * record;
             const struct mstate *s = &is.next[k];
@@ -1172,7 +1202,11 @@ static ERL_NIF_TERM island_run(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv
             nbins--;
         }
         for (int k = 0; k < n; k++) terms[k] = make_mstate(env, st_atom, &is.st[k], is.m.rot);
-        result = enif_make_tuple3(env, enif_make_int64(env, t), enif_make_tuple_from_array(env, terms, n), out_bins);
+        ERL_NIF_TERM acc = measured ? enif_make_tuple3(env, first ? atom_some : atom_none, make_doubles(env, box, 6),
+                                                       enif_make_double(env, reach))
+                                    : atom_none;
+        result = enif_make_tuple4(env, enif_make_int64(env, t), enif_make_tuple_from_array(env, terms, n), out_bins,
+                                  acc);
         enif_free(terms);
     }
 done:
@@ -1182,10 +1216,45 @@ done:
     return result;
 }
 
+/*
+ * measure(Bin, Size): rw_states:seal/3's measurement of the positions of
+ * the states in Bin (Size bytes each, at most MAX_SCAN): {Box, Reach},
+ * Reach undefined where a step between them overflows; or fallback.
+ */
+static ERL_NIF_TERM measure(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[]) {
+    ErlNifBinary bin;
+    ErlNifSInt64 size;
+    (void)argc;
+    if (!enif_inspect_binary(env, argv[0], &bin) || !enif_get_int64(env, argv[1], &size) || size < 24 ||
+        bin.size == 0 || bin.size % (size_t)size != 0 || bin.size / (size_t)size > MAX_SCAN)
+        return atom_fallback;
+    size_t n = bin.size / (size_t)size;
+    const unsigned char *p = bin.data;
+    double px = get_double(p), py = get_double(p + 8), pz = get_double(p + 16), reach = 0.0;
+    double box[6] = {px, py, pz, px, py, pz};
+    feclearexcept(FE_ALL_EXCEPT);
+    for (size_t i = 0; i < n; i++, p += size) {
+        double x = get_double(p), y = get_double(p + 8), z = get_double(p + 16);
+        double step = (eabs(x - px) + eabs(y - py)) + eabs(z - pz);
+        if (x < box[0]) box[0] = x;
+        if (y < box[1]) box[1] = y;
+        if (z < box[2]) box[2] = z;
+        if (x > box[3]) box[3] = x;
+        if (y > box[4]) box[4] = y;
+        if (z > box[5]) box[5] = z;
+        if (step > reach) reach = step;
+        px = x; py = y; pz = z;
+    }
+    int overflow = fetestexcept(BAD_FLAGS) != 0;
+    feclearexcept(FE_ALL_EXCEPT);
+    return enif_make_tuple2(env, make_doubles(env, box, 6), overflow ? atom_undefined : enif_make_double(env, reach));
+}
+
 static ErlNifFunc funcs[] = {
     {"free_run", 13, free_run, 0},
     {"first_touch", 10, first_touch, 0},
-    {"island_run", 7, island_run, 0},
+    {"island_run", 8, island_run, 0},
+    {"measure", 2, measure, 0},
 };
 
 ERL_NIF_INIT(rw_native, funcs, load, NULL, upgrade, NULL)

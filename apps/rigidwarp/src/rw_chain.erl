@@ -144,6 +144,22 @@ flight(T, X, Y, Z, VX, VY, VZ, Q, W, Last, {#model{dt = Dt, gravity = G, integra
                 false -> flight_one(T1, NX, NY, NZ, NVX, NVY, NVZ, NQ, W, Last, Ctx, Zone, Island, Sync, Busy, Passed,
                                     Bin1, First1, NX0, NY0, NZ0, NX1, NY1, NZ1, Reach1, 0)
             end;
+        _ when Next =/= T ->
+            %% touching a fixture: the C island up to the next sync point
+            %% or busy substep
+            {M, _, _, _, _} = Ctx,
+            {_, Spheres, Fixtures} = rw_island:bodies(Island),
+            Stop = lists:min([Last | [S || S <- [Sync, Next], is_integer(S)]]),
+            case rw_native:island_run(T, Stop, DtT, M, Spheres, Fixtures,
+                                      {#st{p = {X, Y, Z}, v = {VX, VY, VZ}, q = Q, w = W}}, {First, {X0, Y0, Z0, X1, Y1, Z1}, Reach}) of
+                {T1, {#st{p = {NX, NY, NZ}, v = {NVX, NVY, NVZ}, q = NQ, w = NW}}, [States],
+                 {First1, {NX0, NY0, NZ0, NX1, NY1, NZ1}, Reach1}} when T1 > T ->
+                    flight(T1, NX, NY, NZ, NVX, NVY, NVZ, NQ, NW, Last, Ctx, Zone, Island, Sync, Busy, Passed,
+                           <<Bin/binary, States/binary>>, First1, NX0, NY0, NZ0, NX1, NY1, NZ1, Reach1, 0);
+                _ ->
+                    flight_one(T, X, Y, Z, VX, VY, VZ, Q, W, Last, Ctx, Zone, Island, Sync, Busy, Passed, Bin, First,
+                               X0, Y0, Z0, X1, Y1, Z1, Reach, ?NATIVE_AGAIN)
+            end;
         _ ->
             flight_one(T, X, Y, Z, VX, VY, VZ, Q, W, Last, Ctx, Zone, Island, Sync, Busy, Passed, Bin, First,
                        X0, Y0, Z0, X1, Y1, Z1, Reach, ?NATIVE_AGAIN)
@@ -254,9 +270,9 @@ chain(T, States, Last, Ctx, Island, Passed, Bins, [B | Busy]) when B < T ->
 chain(T, States, Last, {M, Dt, _, _, Cal} = Ctx, Island, Passed, Bins, Busy) when is_list(Busy) ->
     %% the C loop up to the next substep it leaves to the island
     Stop = lists:min([Last | [S || S <- [rw_sync:next_at(T, Cal) | lists:sublist(Busy, 1)], is_integer(S)]]),
-    case Stop > T andalso rw_native:island_run(T, Stop, Dt, M, element(2, rw_island:bodies(Island)),
-                                              element(3, rw_island:bodies(Island)), States) of
-        {T1, Next, New} when T1 > T ->
+    {_, Spheres, Fixtures} = rw_island:bodies(Island),
+    case Stop > T andalso rw_native:island_run(T, Stop, Dt, M, Spheres, Fixtures, States, none) of
+        {T1, Next, New, none} when T1 > T ->
             chain(T1, Next, Last, Ctx, Island, Passed, append_all(Bins, New), Busy);
         _ ->
             chain_one(T, States, Last, Ctx, Island, Passed, Bins, Busy)

@@ -8,7 +8,7 @@
 %% escript copied away from its build) enabled/0 says so, the callers run
 %% the Erlang code alone, slower and with the same results.
 -module(rw_native).
--export([free_run/13, first_touch/10, island_run/7, loaded/0, enabled/0, use/1, library/0, library_variable/0]).
+-export([free_run/13, first_touch/10, island_run/8, measure/2, loaded/0, enabled/0, use/1, library/0, library_variable/0]).
 -on_load(init/0).
 
 %% the library's file, or none
@@ -104,12 +104,22 @@ first_touch(_BinA, _SizeA, _IA, _BinB, _SizeB, _IB, _Left, _Sum, _Margin, _Reach
 %% A contact group's substeps (rw_island:step/3 without CCD and with no
 %% contact from outside) from T while T < Stop, none of them a sync point
 %% or the group's start: Model, the members' Spheres (ascending idx), the
-%% scene's Fixtures and the members' States at T. Returns the time and
-%% states reached and per member the states after T up to there
-%% (rw_states' layout), or fallback. It may stop short of Stop (at most
-%% some thousand member-substeps a call, or before a substep where the
-%% Erlang code would raise).
--spec island_run(non_neg_integer(), non_neg_integer(), pos_integer(), tuple(), tuple(), list(), tuple()) ->
-          {non_neg_integer(), tuple(), [binary()]} | fallback.
-island_run(_T, _Stop, _DtT, _Model, _Spheres, _Fixtures, _States) ->
+%% scene's Fixtures and the members' States at T; Acc is none or, for a
+%% body alone (rw_chain:flight/26), {First, Box, Reach} as free_run/13
+%% takes it. Returns the time and states reached, per member the states
+%% after T up to there (rw_states' layout) and Acc measured over them, or
+%% fallback. It may stop short of Stop (at most some thousand
+%% member-substeps a call, or before a substep where the Erlang code would
+%% raise).
+-spec island_run(non_neg_integer(), non_neg_integer(), pos_integer(), tuple(), tuple(), list(), tuple(),
+                 none | {none | some, rw_shape:box6(), float()}) ->
+          {non_neg_integer(), tuple(), [binary()], none | {none | some, rw_shape:box6(), float()}} | fallback.
+island_run(_T, _Stop, _DtT, _Model, _Spheres, _Fixtures, _States, _Acc) ->
+    erlang:nif_error(not_loaded).
+
+%% rw_states:seal/3's measurement of the positions of the states in Bin
+%% (Size bytes each): their box and reach (undefined where a step between
+%% them overflows), or fallback.
+-spec measure(binary(), pos_integer()) -> {rw_shape:box6(), float() | undefined} | fallback.
+measure(_Bin, _Size) ->
     erlang:nif_error(not_loaded).

@@ -83,7 +83,12 @@ append(Bin, St, {DX, DY, DZ}, Rotation) ->
 -spec seal(binary(), boolean(), boolean()) -> packed().
 seal(<<X:64/float, Y:64/float, Z:64/float, _/binary>> = Bin, Rotation, Ccd) ->
     Size = record_size(Rotation, Ccd),
-    {Extents, Reach} = with_reach(fun(Reach0) -> measure(Size - 24, Bin, X, Y, Z, X, Y, Z, X, Y, Z, Reach0) end),
+    %% (the C loop where it is loaded: rw_native)
+    {Extents, Reach} =
+        case rw_native:enabled() andalso rw_native:measure(Bin, Size) of
+            {Box, NativeReach} -> {Box, NativeReach};
+            _ -> with_reach(fun(Reach0) -> measure(Size - 24, Bin, X, Y, Z, X, Y, Z, X, Y, Z, Reach0) end)
+        end,
     {Size, Rotation, Ccd, Bin, Extents, Reach}.
 
 %% pack/14's measurement over the positions read back from the binary

@@ -111,6 +111,21 @@ touch_case() ->
 
 first_touch({A, IA, B, IB, Left, Sum}) -> rw_states:first_touch(A, IA, B, IB, Left, Sum).
 
+%% A group's states sealed (their box and reach measured) at awkward
+%% positions: signed zeros, subnormals, steps that overflow.
+seal_at_awkward_doubles_test() ->
+    _ = rand:seed(exsss, {11, 12, 13}),
+    Results = [both_ways(fun() -> rw_states:seal(Bin, Rot, false) end)
+               || _ <- lists:seq(1, 500), Rot <- [false, true],
+                  Bin <- [<< <<(rw_states:append(<<>>, St, undefined, Rot))/binary>>
+                             || St <- [awkward_state(Rot) || _ <- lists:seq(1, rand:uniform(20))] >>]],
+    [?assert(rw_test_lib:bitwise_equal(Native, Erlang)) || {Native, Erlang} <- Results],
+    Reaches = lists:usort([is_float(rw_states:reach(Sealed)) || {{ok, Sealed}, _} <- Results]),
+    ?assertEqual([false, true], Reaches).
+
+awkward_state(false) -> #st{p = vec(), v = vec()};
+awkward_state(true) -> #st{p = vec(), v = vec(), q = {vec(), pick()}, w = vec()}.
+
 %% A step longer than the C loop takes in one call (4096 substeps) and a
 %% scan longer than it takes at all: the same results, over several calls
 %% and in Erlang.
