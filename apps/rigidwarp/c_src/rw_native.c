@@ -1,5 +1,5 @@
 /*
- * Two hot loops of the Time Warp engine in C, each the same float
+ * The hot loops of the Time Warp engine in C, each the same float
  * operations in the same order as its Erlang original, so that the results
  * are bit for bit those of the Erlang code (IEEE doubles, no fused
  * multiply-add: the Makefile builds with -ffp-contract=off):
@@ -8,7 +8,10 @@
  *                   in its free zone and meets no sync point, busy substep
  *                   or the step's end;
  *   first_touch/10  rw_states:first_touch/6's scan of two bodies' packed
- *                   positions.
+ *                   positions;
+ *   island_run/10   rw_island:step/3 substep after substep: a contact
+ *                   group, or a body alone touching a fixture;
+ *   measure/2       rw_states:seal/3's box and reach of a group's states.
  *
  * Where the Erlang code would raise badarith (a result that is not a
  * finite double) or fail on its arguments these return the atom fallback,
@@ -889,6 +892,9 @@ static ERL_NIF_TERM make_mstate(ErlNifEnv *env, ERL_NIF_TERM st_atom, const stru
     return enif_make_tuple5(env, st_atom, make_doubles(env, s->p, 3), make_doubles(env, s->v, 3), q, w);
 }
 
+/* A contact with a body outside at time t: member k's half. */
+struct external { ErlNifSInt64 t; int k; struct effect e; };
+
 /* The working memory of one call. */
 struct island {
     struct model m;
@@ -909,6 +915,11 @@ struct island {
     int listed; /* 0: every pair is tested */
     int *pairs_ab;
     size_t npairs, pairs_cap;
+    /* known contacts with bodies outside, by time */
+    struct external *ext;
+    size_t next_ext, n_ext;
+    /* each member's post-response velocities at this substep: v, w, u */
+    double *posts;
 };
 
 /* Pairs that may touch while every member stays within limit of its
@@ -982,8 +993,8 @@ static int pair_contact(struct island *is, int a, int b) {
     return 1;
 }
 
-/* One substep: is->next from is->st. 0: out of memory. */
-static int island_substep(struct island *is) {
+/* The substep at t: is->next from is->st. 0: out of memory. */
+static int island_substep(struct island *is, ErlNifSInt64 t) {
     const struct model *m = &is->m;
     int n = is->n;
     is->fixed.n = 0;
@@ -1035,6 +1046,14 @@ static int island_substep(struct island *is) {
             for (int b = a + 1; b < n; b++)
                 if (!pair_contact(is, a, b)) return 0;
     }
+    /* and those with bodies outside, as pair effects */
+    while (is->next_ext < is->n_ext && is->ext[is->next_ext].t < t) is->next_ext++;
+    for (size_t i = is->next_ext; i < is->n_ext && is->ext[i].t == t; i++) {
+        struct effect *e = effects_add(&is->pairs);
+        if (!e) return 0;
+        *e = is->ext[i].e;
+        e->feature = is->ext[i].k;
+    }
     /* each member's pair effects, sorted by key */
     if (is->pairs.n > is->sorted_cap) {
         struct effect *e = enif_realloc(is->sorted, is->pairs.n * sizeof *e);
@@ -1073,6 +1092,10 @@ static int island_substep(struct island *is) {
             if (m->rot) for (int c = 0; c < 3; c++) w[c] = w[c] + e->dw[c];
             for (int c = 0; c < 3; c++) u[c] = u[c] + e->du[c];
         }
+        double *post = &is->posts[9 * k];
+        memcpy(post, v, sizeof v);
+        memcpy(post + 3, w, sizeof w);
+        memcpy(post + 6, u, sizeof u);
         advance(m, st, v, w, u, &is->next[k]);
     }
     return 1;
@@ -1082,21 +1105,70 @@ static void island_free(struct island *is) {
     enif_free(is->s); enif_free(is->f); enif_free(is->st); enif_free(is->next); enif_free(is->seen);
     enif_free(is->fixed_start); enif_free(is->fixed_n); enif_free(is->pair_start); enif_free(is->pair_n);
     enif_free(is->fixed.e); enif_free(is->pairs.e); enif_free(is->sorted); enif_free(is->anchor);
-    enif_free(is->pairs_ab);
+    enif_free(is->pairs_ab); enif_free(is->ext); enif_free(is->posts);
+}
+
+/* The next sync point from a list of them (-1: none). */
+static int next_sync(ErlNifEnv *env, ERL_NIF_TERM *list, ErlNifSInt64 *sync) {
+    ERL_NIF_TERM head;
+    ErlNifSInt64 last = *sync;
+    if (enif_is_empty_list(env, *list)) { *sync = -1; return 1; }
+    return enif_get_list_cell(env, *list, &head, list) && enif_get_int64(env, head, sync) && *sync > last;
+}
+
+/* {Dv, Dw, Du}: Dw undefined without rotation */
+static int get_effect(ErlNifEnv *env, ERL_NIF_TERM term, int rot, struct effect *e) {
+    const ERL_NIF_TERM *r;
+    int arity;
+    if (!enif_get_tuple(env, term, &arity, &r) || arity != 3 || !get_doubles(env, r[0], 3, e->dv) ||
+        !get_doubles(env, r[2], 3, e->du))
+        return 0;
+    if (!rot) return enif_is_identical(r[1], atom_undefined);
+    return get_doubles(env, r[1], 3, e->dw);
+}
+
+/* [{Time, MemberIdx, PartnerIdx, Effect}], ascending by time */
+static int get_externals(ErlNifEnv *env, ERL_NIF_TERM list, struct island *is) {
+    unsigned len;
+    ERL_NIF_TERM head;
+    if (!enif_get_list_length(env, list, &len)) return 0;
+    is->ext = enif_alloc((len ? len : 1) * sizeof *is->ext);
+    if (!is->ext) return 0;
+    for (unsigned i = 0; i < len; i++) {
+        const ERL_NIF_TERM *r;
+        int arity;
+        long member;
+        struct external *x = &is->ext[i];
+        if (!enif_get_list_cell(env, list, &head, &list) || !enif_get_tuple(env, head, &arity, &r) || arity != 4 ||
+            !enif_get_int64(env, r[0], &x->t) || !get_long(env, r[1], &member) || !get_long(env, r[2], &x->e.key) ||
+            !get_effect(env, r[3], is->m.rot, &x->e) || (i > 0 && x->t < is->ext[i - 1].t))
+            return 0;
+        x->e.feature = 0;
+        x->k = -1;
+        for (int k = 0; k < is->n; k++)
+            if (is->s[k].idx == member) x->k = k;
+        if (x->k < 0) return 0;
+    }
+    is->n_ext = len;
+    return 1;
 }
 
 /*
- * island_run(T, Stop, DtT, Model, Spheres, Fixtures, States, Acc)
+ * island_run(T, Stop, DtT, Model, Spheres, Fixtures, States, Acc, Syncs, Outside)
  *
  * Model a #model{} without CCD, Spheres the members' #sphere{} (a tuple,
  * ascending idx), Fixtures the scene's #fixture{} list, States their #st{}
- * at T (a tuple). Steps every substep from T while T < Stop (none of them
- * a sync point, the group's start or a substep with contacts from
- * outside: the caller's to know), at most MAX_ISLAND_WORK member-substeps,
- * and returns {T1, States1, Bins, Acc1}: the time reached, the states
- * there, per member its states after T up to T1 (rw_states' layout) and
- * Acc: none, or for a body alone {First, Box, Reach} measured over its
- * states as free_run/13 measures them; or fallback.
+ * at T (a tuple); Syncs the sync points from T on (ascending), Outside
+ * the known contacts with bodies outside from T on, {Time, MemberIdx,
+ * PartnerIdx, Effect} ascending by time. Steps every substep from T while
+ * T < Stop (not the group's start: the caller's to know), at most
+ * MAX_ISLAND_WORK member-substeps, and returns
+ * {T1, States1, Bins, Acc1, Passed}: the time reached, the states there,
+ * per member its states after T up to T1 (rw_states' layout), Acc (none,
+ * or for a body alone {First, Box, Reach} measured over its states as
+ * free_run/13 measures them) and the sync points passed, ascending,
+ * {Ts, States, Posts} with the members' post-response velocities {V, W, U};
+ * or fallback.
  */
 static ERL_NIF_TERM island_run(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[]) {
     ErlNifSInt64 t, stop, dtt;
@@ -1135,10 +1207,11 @@ static ERL_NIF_TERM island_run(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv
     is.pair_start = enif_alloc(n * sizeof(size_t));
     is.pair_n = enif_alloc(n * sizeof(size_t));
     is.anchor = enif_alloc(3 * n * sizeof(double));
+    is.posts = enif_alloc(9 * n * sizeof(double));
     ErlNifBinary *bins = enif_alloc(n * sizeof *bins);
     int nbins = 0;
     if (!is.s || !is.f || !is.st || !is.next || !is.seen || !is.fixed_start || !is.fixed_n || !is.pair_start ||
-        !is.pair_n || !is.anchor || !bins)
+        !is.pair_n || !is.anchor || !is.posts || !bins)
         goto done;
     for (int k = 0; k < n; k++)
         if (!get_sphere(env, spheres[k], &is.s[k]) || !get_mstate(env, states[k], is.m.rot, &is.st[k])) goto done;
@@ -1146,20 +1219,41 @@ static ERL_NIF_TERM island_run(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv
     for (unsigned i = 0; i < nf; i++)
         if (!enif_get_list_cell(env, list, &head, &list) || !get_ifixture(env, head, &is.f[i])) goto done;
 
+    if (!get_externals(env, argv[9], &is)) goto done;
+
     ErlNifSInt64 max = t < stop ? (stop - t + dtt - 1) / dtt : 0;
     if (max * n > MAX_ISLAND_WORK) max = MAX_ISLAND_WORK / n > 0 ? MAX_ISLAND_WORK / n : 1;
     size_t record = is.m.rot ? 13 * 8 : 6 * 8;
+    /* the sync points to pass: their states and posts, kept */
+    ERL_NIF_TERM syncs = argv[8], passed = enif_make_list(env, 0), st_atom = enif_make_atom(env, "st");
+    ErlNifSInt64 sync = -1;
+    if (!next_sync(env, &syncs, &sync)) goto done;
     for (; nbins < n; nbins++)
         if (!enif_alloc_binary(max * record, &bins[nbins])) goto done;
 
     ErlNifSInt64 steps = 0;
     feclearexcept(FE_ALL_EXCEPT);
     while (steps < max) {
-        if (!island_substep(&is)) goto done;
+        if (!island_substep(&is, t)) goto done;
         double step = 0.0;
         const double *np = is.next[0].p, *op = is.st[0].p;
         if (measured && first) step = (eabs(np[0] - op[0]) + eabs(np[1] - op[1])) + eabs(np[2] - op[2]);
         if (fetestexcept(BAD_FLAGS)) break;
+        if (t == sync) {
+            ERL_NIF_TERM sts[n], posts[n];
+            for (int k = 0; k < n; k++) {
+                const double *post = &is.posts[9 * k];
+                sts[k] = make_mstate(env, st_atom, &is.st[k], is.m.rot);
+                posts[k] = enif_make_tuple3(env, make_doubles(env, post, 3),
+                                            is.m.rot ? make_doubles(env, post + 3, 3) : atom_undefined,
+                                            make_doubles(env, post + 6, 3));
+            }
+            passed = enif_make_list_cell(env, enif_make_tuple3(env, enif_make_int64(env, t),
+                                                               enif_make_tuple_from_array(env, sts, n),
+                                                               enif_make_tuple_from_array(env, posts, n)),
+                                         passed);
+            if (!next_sync(env, &syncs, &sync)) goto done;
+        }
         if (measured) {
             if (!first) {
                 /* the first state: the box is its position, the reach 0 */
@@ -1205,8 +1299,10 @@ static ERL_NIF_TERM island_run(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv
         ERL_NIF_TERM acc = measured ? enif_make_tuple3(env, first ? atom_some : atom_none, make_doubles(env, box, 6),
                                                        enif_make_double(env, reach))
                                     : atom_none;
-        result = enif_make_tuple4(env, enif_make_int64(env, t), enif_make_tuple_from_array(env, terms, n), out_bins,
-                                  acc);
+        ERL_NIF_TERM ascending;
+        enif_make_reverse_list(env, passed, &ascending);
+        result = enif_make_tuple5(env, enif_make_int64(env, t), enif_make_tuple_from_array(env, terms, n), out_bins,
+                                  acc, ascending);
         enif_free(terms);
     }
 done:
@@ -1253,7 +1349,7 @@ static ERL_NIF_TERM measure(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
 static ErlNifFunc funcs[] = {
     {"free_run", 13, free_run, 0},
     {"first_touch", 10, first_touch, 0},
-    {"island_run", 8, island_run, 0},
+    {"island_run", 10, island_run, 0},
     {"measure", 2, measure, 0},
 };
 

@@ -27,7 +27,9 @@
 %% in a list and packed at the end: a step of at most a stride); a group
 %% appends each member's states to a binary as it computes them, so that
 %% the states of a long step are never on the heap for the garbage
-%% collector to copy.
+%% collector to copy. Where the C loops are loaded (rw_native) the C
+%% island takes a group's substeps, and a body's alone where it touches a
+%% fixture, but for the group's start.
 -spec run(non_neg_integer(), tuple(), non_neg_integer(), context(), rw_island:island()) ->
           {[passed()], [rw_states:packed()], rw_island:island()}.
 run(T, {St}, Last, {#model{ccd = false, rotation = Rot}, _, Base, TL, Cal} = Ctx, Island0) when T < Last ->
@@ -45,11 +47,11 @@ run(T, {St}, Last, {#model{ccd = false, rotation = Rot}, _, Base, TL, Cal} = Ctx
     end;
 run(T, {St}, Last, Ctx, Island0) ->
     run_each(T, St, Last, Ctx, Island0);
-run(T, States, Last, {#model{rotation = Rot, ccd = Ccd}, _, Base, TL, _} = Ctx, Island0) ->
-    %% the substeps the C loop leaves to the island: the group's start and
-    %% known contacts with the outside (and sync points)
+run(T, States, Last, {#model{rotation = Rot, ccd = Ccd}, _, _, TL, _} = Ctx, Island0) ->
+    %% (the C island, where it is loaded, takes the substeps but the
+    %% group's start, given the known contacts with the outside)
     Native = case Ccd =:= false andalso rw_native:enabled() of
-                 true -> lists:usort([TB || {TB, _} <- [Base], TB >= T, TB < Last] ++ rw_timeline:contact_times(T, Last, TL));
+                 true -> rw_timeline:contact_times(T, Last, TL);
                  false -> false
              end,
     {Passed, Bins, Island} = chain(T, States, Last, Ctx, Island0, [], [<<>> || _ <- tuple_to_list(States)], Native),
@@ -145,17 +147,24 @@ flight(T, X, Y, Z, VX, VY, VZ, Q, W, Last, {#model{dt = Dt, gravity = G, integra
                                     Bin1, First1, NX0, NY0, NZ0, NX1, NY1, NZ1, Reach1, 0)
             end;
         _ when Next =/= T ->
-            %% touching a fixture: the C island up to the next sync point
-            %% or busy substep
-            {M, _, _, _, _} = Ctx,
+            %% touching a fixture: the C island, up to the group's start
+            %% or Last, given the known contacts with the outside
+            {M, _, Base, TL, Cal} = Ctx,
             {_, Spheres, Fixtures} = rw_island:bodies(Island),
-            Stop = lists:min([Last | [S || S <- [Sync, Next], is_integer(S)]]),
+            Stop = case Base of
+                       {TB, _} when TB >= T, TB < Last -> TB;
+                       _ -> Last
+                   end,
+            Outside = [{TC, Member, Partner, Effect} || TC <- Busy, TC < Stop,
+                                                        {Member, {{Partner, 0}, Effect}} <- rw_timeline:external(TC, TL)],
             case rw_native:island_run(T, Stop, DtT, M, Spheres, Fixtures,
-                                      {#st{p = {X, Y, Z}, v = {VX, VY, VZ}, q = Q, w = W}}, {First, {X0, Y0, Z0, X1, Y1, Z1}, Reach}) of
+                                      {#st{p = {X, Y, Z}, v = {VX, VY, VZ}, q = Q, w = W}},
+                                      {First, {X0, Y0, Z0, X1, Y1, Z1}, Reach}, syncs(T, Stop, DtT, Cal), Outside) of
                 {T1, {#st{p = {NX, NY, NZ}, v = {NVX, NVY, NVZ}, q = NQ, w = NW}}, [States],
-                 {First1, {NX0, NY0, NZ0, NX1, NY1, NZ1}, Reach1}} when T1 > T ->
-                    flight(T1, NX, NY, NZ, NVX, NVY, NVZ, NQ, NW, Last, Ctx, Zone, Island, Sync, Busy, Passed,
-                           <<Bin/binary, States/binary>>, First1, NX0, NY0, NZ0, NX1, NY1, NZ1, Reach1, 0);
+                 {First1, {NX0, NY0, NZ0, NX1, NY1, NZ1}, Reach1}, More} when T1 > T ->
+                    flight(T1, NX, NY, NZ, NVX, NVY, NVZ, NQ, NW, Last, Ctx, Zone, Island, rw_sync:next_at(T1, Cal),
+                           [B || B <- Busy, B >= T1], lists:reverse(More, Passed), <<Bin/binary, States/binary>>,
+                           First1, NX0, NY0, NZ0, NX1, NY1, NZ1, Reach1, 0);
                 _ ->
                     flight_one(T, X, Y, Z, VX, VY, VZ, Q, W, Last, Ctx, Zone, Island, Sync, Busy, Passed, Bin, First,
                                X0, Y0, Z0, X1, Y1, Z1, Reach, ?NATIVE_AGAIN)
@@ -263,22 +272,39 @@ append(Bin, X, Y, Z, VX, VY, VZ, {{QX, QY, QZ}, QW}, {WX, WY, WZ}) ->
     <<Bin/binary, X:64/float, Y:64/float, Z:64/float, VX:64/float, VY:64/float, VZ:64/float,
       QX:64/float, QY:64/float, QZ:64/float, QW:64/float, WX:64/float, WY:64/float, WZ:64/float>>.
 
+%% A group's substeps from T: with the C loops (Contacts, the times of its
+%% known contacts with the outside) the C island's up to the group's start
+%% or Last, the Erlang island's where it hands over; without (false) the
+%% Erlang island's.
 chain(T, _States, Last, _Ctx, Island, Passed, Bins, _Native) when T >= Last ->
     {lists:reverse(Passed), Bins, Island};
-chain(T, States, Last, Ctx, Island, Passed, Bins, [B | Busy]) when B < T ->
-    chain(T, States, Last, Ctx, Island, Passed, Bins, Busy);
-chain(T, States, Last, {M, Dt, _, _, Cal} = Ctx, Island, Passed, Bins, Busy) when is_list(Busy) ->
-    %% the C loop up to the next substep it leaves to the island
-    Stop = lists:min([Last | [S || S <- [rw_sync:next_at(T, Cal) | lists:sublist(Busy, 1)], is_integer(S)]]),
+chain(T, States, Last, {M, Dt, Base, TL, Cal} = Ctx, Island, Passed, Bins, Contacts) when is_list(Contacts) ->
+    Stop = case Base of
+               {TB, _} when TB >= T, TB < Last -> TB;
+               _ -> Last
+           end,
     {_, Spheres, Fixtures} = rw_island:bodies(Island),
-    case Stop > T andalso rw_native:island_run(T, Stop, Dt, M, Spheres, Fixtures, States, none) of
-        {T1, Next, New, none} when T1 > T ->
-            chain(T1, Next, Last, Ctx, Island, Passed, append_all(Bins, New), Busy);
+    Outside = [{TC, Member, Partner, Effect} || TC <- Contacts, TC >= T, TC < Stop,
+                                                {Member, {{Partner, 0}, Effect}} <- rw_timeline:external(TC, TL)],
+    case Stop > T andalso
+        rw_native:island_run(T, Stop, Dt, M, Spheres, Fixtures, States, none, syncs(T, Stop, Dt, Cal), Outside) of
+        {T1, Next, New, none, More} when T1 > T ->
+            chain(T1, Next, Last, Ctx, Island, lists:reverse(More, Passed), append_all(Bins, New), Contacts);
         _ ->
-            chain_one(T, States, Last, Ctx, Island, Passed, Bins, Busy)
+            chain_one(T, States, Last, Ctx, Island, Passed, Bins, Contacts)
     end;
 chain(T, States, Last, Ctx, Island, Passed, Bins, Native) ->
     chain_one(T, States, Last, Ctx, Island, Passed, Bins, Native).
+
+%% The sync points at the substeps from T (Dt apart) before Stop.
+syncs(T, Stop, Dt, Cal) -> syncs(T, T, Stop, Dt, Cal).
+
+syncs(From, T, Stop, Dt, Cal) ->
+    case rw_sync:next_at(From, Cal) of
+        S when is_integer(S), S < Stop, (S - T) rem Dt =:= 0 -> [S | syncs(S + 1, T, Stop, Dt, Cal)];
+        S when is_integer(S), S < Stop -> syncs(S + 1, T, Stop, Dt, Cal);
+        _ -> []
+    end.
 
 %% One substep of chain/8, through the island.
 chain_one(T, States, Last, {M, Dt, Base, TL, Cal} = Ctx, Island, Passed, Bins, Native) ->

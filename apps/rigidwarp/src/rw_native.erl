@@ -1,14 +1,15 @@
-%% Two hot loops of the engine in C (c_src/rw_native.c, built into
-%% priv/rw_native.so): a body's free flight (rw_chain) and the scan of two
-%% bodies' packed positions for their first touch (rw_states). Each does
-%% the Erlang code's float operations in the same order, so the results are
-%% bit for bit the same; where the Erlang code would raise or fail on its
-%% arguments, the C code answers fallback and the caller runs the Erlang
-%% code from the same point. Where the library cannot be loaded (the
+%% The engine's hot loops in C (c_src/rw_native.c, built into
+%% priv/rw_native.so): a body's free flight and a contact group's island,
+%% the substeps of rw_chain; the scan of two bodies' packed positions for
+%% their first touch and the measure of a group's states, in rw_states.
+%% Each does the Erlang code's float operations in the same order, so the
+%% results are bit for bit the same; where the Erlang code would raise or
+%% fail on its arguments, the C code answers fallback (or stops short) and
+%% the caller runs the Erlang code from the same point. Where the library cannot be loaded (the
 %% escript copied away from its build) enabled/0 says so, the callers run
 %% the Erlang code alone, slower and with the same results.
 -module(rw_native).
--export([free_run/13, first_touch/10, island_run/8, measure/2, loaded/0, enabled/0, use/1, library/0, library_variable/0]).
+-export([free_run/13, first_touch/10, island_run/10, measure/2, loaded/0, enabled/0, use/1, library/0, library_variable/0]).
 -on_load(init/0).
 
 %% the library's file, or none
@@ -101,20 +102,24 @@ free_run(_T, _Last, _DtT, _Dt, _Sync, _Busy, _Zone, _Gravity, _Integrator, _Stat
 first_touch(_BinA, _SizeA, _IA, _BinB, _SizeB, _IB, _Left, _Sum, _Margin, _Reach) ->
     erlang:nif_error(not_loaded).
 
-%% A contact group's substeps (rw_island:step/3 without CCD and with no
-%% contact from outside) from T while T < Stop, none of them a sync point
-%% or the group's start: Model, the members' Spheres (ascending idx), the
-%% scene's Fixtures and the members' States at T; Acc is none or, for a
-%% body alone (rw_chain:flight/26), {First, Box, Reach} as free_run/13
-%% takes it. Returns the time and states reached, per member the states
-%% after T up to there (rw_states' layout) and Acc measured over them, or
-%% fallback. It may stop short of Stop (at most some thousand
-%% member-substeps a call, or before a substep where the Erlang code would
-%% raise).
+%% A contact group's substeps (rw_island:step/3 without CCD) from T while
+%% T < Stop, not at the group's start: Model, the members' Spheres
+%% (ascending idx), the scene's Fixtures, the members' States at T, Acc
+%% (none or, for a body alone in rw_chain:flight/26, {First, Box, Reach}
+%% as free_run/13 takes it), the sync points from T on (ascending) and the
+%% known contacts with bodies outside from T on, {Time, MemberIdx,
+%% PartnerIdx, Effect} ascending by time. Returns the time and states
+%% reached, per member the states after T up to there (rw_states' layout),
+%% Acc measured over them and the sync points passed (as rw_chain:passed()
+%% and in ascending order), or fallback. It may stop short of Stop (at
+%% most some thousand member-substeps a call, or before a substep where the
+%% Erlang code would raise).
 -spec island_run(non_neg_integer(), non_neg_integer(), pos_integer(), tuple(), tuple(), list(), tuple(),
-                 none | {none | some, rw_shape:box6(), float()}) ->
-          {non_neg_integer(), tuple(), [binary()], none | {none | some, rw_shape:box6(), float()}} | fallback.
-island_run(_T, _Stop, _DtT, _Model, _Spheres, _Fixtures, _States, _Acc) ->
+                 none | {none | some, rw_shape:box6(), float()}, [non_neg_integer()],
+                 [{non_neg_integer(), non_neg_integer(), non_neg_integer(), rw_response:effect()}]) ->
+          {non_neg_integer(), tuple(), [binary()], none | {none | some, rw_shape:box6(), float()},
+           [{non_neg_integer(), tuple(), tuple()}]} | fallback.
+island_run(_T, _Stop, _DtT, _Model, _Spheres, _Fixtures, _States, _Acc, _Syncs, _Outside) ->
     erlang:nif_error(not_loaded).
 
 %% rw_states:seal/3's measurement of the positions of the states in Bin

@@ -1,4 +1,4 @@
-%% The C island (rw_native:island_run/8) against the island it stands for,
+%% The C island (rw_native:island_run/10) against the island it stands for,
 %% rw_island:step/3: contact groups of touching spheres with every kind of
 %% fixture, with and without gravity (each integrator), rotation, friction,
 %% slop and rest speed, the same states bit for bit substep by substep; and
@@ -48,7 +48,7 @@ island_run_equals_island_step_test() ->
 
 compare_steps({T, States, Last, {M, _, _, _, _}, Island}) ->
     {_, Spheres, Fixtures} = rw_island:bodies(Island),
-    {T1, Native, Bins, none} = rw_native:island_run(T, Last, 1, M, Spheres, Fixtures, States, none),
+    {T1, Native, Bins, none, []} = rw_native:island_run(T, Last, 1, M, Spheres, Fixtures, States, none, [], []),
     Rot = M#model.rotation,
     {Erlang, ErlangBins} = steps(T1 - T, States, Island, [<<>> || _ <- tuple_to_list(States)], Rot),
     Same = T1 =:= Last andalso rw_test_lib:bitwise_equal({Native, Bins}, {Erlang, ErlangBins}),
