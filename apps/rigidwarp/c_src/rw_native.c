@@ -1347,10 +1347,10 @@ static ERL_NIF_TERM measure(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
 }
 
 static ErlNifFunc funcs[] = {
-    {"free_run", 13, free_run, 0},
-    {"first_touch", 10, first_touch, 0},
-    {"island_run", 10, island_run, 0},
-    {"measure", 2, measure, 0},
+    {"nif_free_run", 13, free_run, 0},
+    {"nif_first_touch", 10, first_touch, 0},
+    {"nif_island_run", 10, island_run, 0},
+    {"nif_measure", 2, measure, 0},
 };
 
 ERL_NIF_INIT(rw_native, funcs, load, NULL, upgrade, NULL)

@@ -12,6 +12,12 @@
 -export([free_run/13, first_touch/10, island_run/10, measure/2, loaded/0, enabled/0, use/1, library/0, library_variable/0]).
 -on_load(init/0).
 
+%% (a call's time counted in a traced task: rw_trace)
+-define(TIMED(Call), case rw_trace:timing() of
+                         false -> Call;
+                         true -> ok = rw_trace:native_begin(), rw_trace:native_end(Call)
+                     end).
+
 %% the library's file, or none
 -define(LIBRARY, {?MODULE, library}).
 -define(ENABLED, {?MODULE, enabled}).
@@ -91,7 +97,10 @@ use(Native) -> persistent_term:put(?ENABLED, Native andalso loaded()).
                {none | some, rw_shape:box6(), float()}) ->
           {non_neg_integer(), {float(), float(), float(), float(), float(), float()}, undefined | rw_quat:quat(),
            binary(), {none | some, rw_shape:box6(), float()}} | fallback.
-free_run(_T, _Last, _DtT, _Dt, _Sync, _Busy, _Zone, _Gravity, _Integrator, _State, _Q, _W, _Acc) ->
+free_run(T, Last, DtT, Dt, Sync, Busy, Zone, Gravity, Integrator, State, Q, W, Acc) ->
+    ?TIMED(nif_free_run(T, Last, DtT, Dt, Sync, Busy, Zone, Gravity, Integrator, State, Q, W, Acc)).
+
+nif_free_run(_T, _Last, _DtT, _Dt, _Sync, _Busy, _Zone, _Gravity, _Integrator, _State, _Q, _W, _Acc) ->
     erlang:nif_error(not_loaded).
 
 %% rw_states:touch/10 over the packed records BinA (SizeA bytes each,
@@ -99,7 +108,10 @@ free_run(_T, _Last, _DtT, _Dt, _Sync, _Busy, _Zone, _Gravity, _Integrator, _Stat
 %% positions are closer than Sum, none, or fallback.
 -spec first_touch(binary(), pos_integer(), pos_integer(), binary(), pos_integer(), pos_integer(),
                   non_neg_integer(), float(), float(), float() | undefined) -> non_neg_integer() | none | fallback.
-first_touch(_BinA, _SizeA, _IA, _BinB, _SizeB, _IB, _Left, _Sum, _Margin, _Reach) ->
+first_touch(BinA, SizeA, IA, BinB, SizeB, IB, Left, Sum, Margin, Reach) ->
+    ?TIMED(nif_first_touch(BinA, SizeA, IA, BinB, SizeB, IB, Left, Sum, Margin, Reach)).
+
+nif_first_touch(_BinA, _SizeA, _IA, _BinB, _SizeB, _IB, _Left, _Sum, _Margin, _Reach) ->
     erlang:nif_error(not_loaded).
 
 %% A contact group's substeps (rw_island:step/3 without CCD) from T while
@@ -119,12 +131,18 @@ first_touch(_BinA, _SizeA, _IA, _BinB, _SizeB, _IB, _Left, _Sum, _Margin, _Reach
                  [{non_neg_integer(), non_neg_integer(), non_neg_integer(), rw_response:effect()}]) ->
           {non_neg_integer(), tuple(), [binary()], none | {none | some, rw_shape:box6(), float()},
            [{non_neg_integer(), tuple(), tuple()}]} | fallback.
-island_run(_T, _Stop, _DtT, _Model, _Spheres, _Fixtures, _States, _Acc, _Syncs, _Outside) ->
+island_run(T, Stop, DtT, Model, Spheres, Fixtures, States, Acc, Syncs, Outside) ->
+    ?TIMED(nif_island_run(T, Stop, DtT, Model, Spheres, Fixtures, States, Acc, Syncs, Outside)).
+
+nif_island_run(_T, _Stop, _DtT, _Model, _Spheres, _Fixtures, _States, _Acc, _Syncs, _Outside) ->
     erlang:nif_error(not_loaded).
 
 %% rw_states:seal/3's measurement of the positions of the states in Bin
 %% (Size bytes each): their box and reach (undefined where a step between
 %% them overflows), or fallback.
 -spec measure(binary(), pos_integer()) -> {rw_shape:box6(), float() | undefined} | fallback.
-measure(_Bin, _Size) ->
+measure(Bin, Size) ->
+    ?TIMED(nif_measure(Bin, Size)).
+
+nif_measure(_Bin, _Size) ->
     erlang:nif_error(not_loaded).

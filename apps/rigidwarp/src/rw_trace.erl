@@ -2,7 +2,9 @@
 %% projection (rw_parallelism): when a simulation is traced (option trace,
 %% an ETS table of the caller's), every handling of one message by a body,
 %% a bucket or the GVT process is a task, with its cost in reductions, the
-%% messages it took in and sent, and the sync points it committed. A body
+%% messages it took in and sent, and the sync points it committed; the
+%% time it spent in the C loops (rw_native), which count few reductions,
+%% is added at the rate of the engine's Erlang code. A body
 %% waiting for a bucket's answer ends its task there and begins another
 %% when the answer comes, so the bucket's work (and its waiting for a lock)
 %% lies between the two.
@@ -17,11 +19,18 @@
 %% code paths stay the same without it. Without a table, every call here
 %% does nothing.
 -module(rw_trace).
--export([init/1, table/0, task/3, begin_task/2, end_task/0, send/2, sent/2, received/1, committed/1, key/2]).
+-export([init/1, table/0, task/3, begin_task/2, end_task/0, send/2, sent/2, received/1, committed/1, key/2,
+         timing/0, native_begin/0, native_end/1]).
 -export_type([task/0, key/0]).
 
 -define(TAB, '$rw_trace_tab').
 -define(TASK, '$rw_trace_task').
+%% the time in the C loops so far in the task, and when the current call began
+-define(NATIVE, '$rw_trace_native').
+-define(NATIVE_START, '$rw_trace_native_start').
+%% Reductions per microsecond of the engine's Erlang code (17-32 over whole
+%% runs on a 2-core AMD EPYC, OTP 25): the cost of a microsecond in C.
+-define(REDUCTIONS_PER_US, 25).
 
 %% A message: its receiver and the hash of its term.
 -type key() :: {pid(), non_neg_integer()}.
@@ -67,6 +76,7 @@ begin_task(Kind, Msg) ->
                  end,
             {reductions, R} = process_info(self(), reductions),
             _ = put(?TASK, {erlang:unique_integer([monotonic, positive]), Kind, R, In, [], []}),
+            _ = put(?NATIVE, 0),
             ok
     end.
 
@@ -80,7 +90,8 @@ end_task() ->
                 undefined -> ok;
                 {Seq, Kind, R0, In, Out, Commits} ->
                     {reductions, R} = process_info(self(), reductions),
-                    true = ets:insert(Tab, {Seq, self(), Kind, R - R0, In, Out, Commits}),
+                    Native = erlang:convert_time_unit(erase(?NATIVE), native, microsecond) * ?REDUCTIONS_PER_US,
+                    true = ets:insert(Tab, {Seq, self(), Kind, R - R0 + Native, In, Out, Commits}),
                     ok
             end
     end.
@@ -122,3 +133,18 @@ committed(T) ->
             _ = put(?TASK, {Seq, Kind, R0, In, Out, [T | Commits]}),
             ok
     end.
+
+%% Is a task of this process being traced? Then a C loop's call is timed:
+%% native_begin/0 before it, native_end/1 with its result after it.
+-spec timing() -> boolean().
+timing() -> get(?TASK) =/= undefined.
+
+-spec native_begin() -> ok.
+native_begin() ->
+    _ = put(?NATIVE_START, erlang:monotonic_time()),
+    ok.
+
+-spec native_end(R) -> R.
+native_end(Result) ->
+    _ = put(?NATIVE, get(?NATIVE) + (erlang:monotonic_time() - get(?NATIVE_START))),
+    Result.
