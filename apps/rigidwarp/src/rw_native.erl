@@ -5,9 +5,10 @@
 %% Each does the Erlang code's float operations in the same order, so the
 %% results are bit for bit the same; where the Erlang code would raise or
 %% fail on its arguments, the C code answers fallback (or stops short) and
-%% the caller runs the Erlang code from the same point. Where the library cannot be loaded (the
-%% escript copied away from its build) enabled/0 says so, the callers run
-%% the Erlang code alone, slower and with the same results.
+%% the caller runs the Erlang code from the same point. Where the library
+%% cannot be loaded (the escript copied away from its build) enabled/0 says
+%% so, the callers run the Erlang code alone, slower and with the same
+%% results.
 -module(rw_native).
 -export([free_run/13, first_touch/10, island_run/10, measure/2, loaded/0, enabled/0, use/1, library/0, library_variable/0]).
 -on_load(init/0).

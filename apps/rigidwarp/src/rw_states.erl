@@ -86,7 +86,7 @@ seal(<<X:64/float, Y:64/float, Z:64/float, _/binary>> = Bin, Rotation, Ccd) ->
     %% (the C loop where it is loaded: rw_native)
     {Extents, Reach} =
         case rw_native:enabled() andalso rw_native:measure(Bin, Size) of
-            {Box, NativeReach} -> {Box, NativeReach};
+            {_, _} = Measured -> Measured;
             _ -> with_reach(fun(Reach0) -> measure(Size - 24, Bin, X, Y, Z, X, Y, Z, X, Y, Z, Reach0) end)
         end,
     {Size, Rotation, Ccd, Bin, Extents, Reach}.

@@ -24,9 +24,9 @@ c_loops_are_timed_test() ->
     States = list_to_tuple([#st{p = {0.19 * (I rem 8), 0.1 + 0.19 * (I div 8), 0.0}, v = {0.0, 0.0, 0.0},
                                 q = rw_quat:identity(), w = {0.0, 0.0, 0.0}} || I <- lists:seq(1, 32)]),
     Floor = rw_shape:fixture(0, <<"floor">>, {plane, {0.0, 1.0, 0.0}, 0.0}),
-    Run = fun() -> rw_native:island_run(0, 500, 1, M, list_to_tuple(Spheres), [Floor], States, none, [], []) end,
+    Run = fun() -> rw_native:island_run(0, 100, 1, M, list_to_tuple(Spheres), [Floor], States, none, [], []) end,
     {reductions, R0} = process_info(self(), reductions),
-    {500, _, _, none, []} = Run(),
+    {100, _, _, none, []} = Run(),
     {reductions, R1} = process_info(self(), reductions),
     [{_, _, body, Cost, _, _, _}] = traced(Run),
     ?assert(Cost > 10 * (R1 - R0)).
