@@ -3,7 +3,8 @@
 -module(rw_test_lib).
 -export([root/0, scenario/1, test_scene/1, scenes_with_reference/1, reference_frames/1, bounded_reference/1,
          runaway/3, check_runaways/1, escript/0, run_escript/1,
-         bitwise_equal/2, assert_bitwise/2, assert_bitwise/3, first_difference/2]).
+         bitwise_equal/2, assert_bitwise/2, assert_bitwise/3, first_difference/2,
+         both_ways/1, awkward_double/0, awkward_vec/0]).
 
 %% Bit for bit the same terms: =:= takes -0.0 for 0.0 on OTP 25; the
 %% external format keeps each float's IEEE bits (deterministic: maps equal
@@ -178,3 +179,34 @@ collect(Port, Acc) ->
         {Port, {exit_status, S}} -> {S, iolist_to_binary(Acc)}
     after 600000 -> error(escript_timeout)
     end.
+
+%% Fun's result (or exception) with the engine's C loops (rw_native), and
+%% with the Erlang code alone.
+-spec both_ways(fun(() -> term())) -> {term(), term()}.
+both_ways(Fun) ->
+    Native = outcome(Fun),
+    ok = rw_native:use(false),
+    try
+        {Native, outcome(Fun)}
+    after
+        ok = rw_native:use(true)
+    end.
+
+outcome(Fun) ->
+    try {ok, Fun()}
+    catch Class:Reason -> {Class, Reason}
+    end.
+
+%% A double that C code standing for Erlang code finds awkward, a third of
+%% the time: signed zeros, subnormals, near the largest double (where the
+%% Erlang code raises); else any magnitude from 1e-20 to 1e20.
+-spec awkward_double() -> float().
+awkward_double() ->
+    Specials = [0.0, -0.0, 5.0e-324, -2.2250738585072014e-308, 1.0e300, -1.0e300, 1.7976931348623157e308, 3.5, -0.25],
+    case rand:uniform(3) of
+        1 -> lists:nth(rand:uniform(length(Specials)), Specials);
+        _ -> (rand:uniform() - 0.5) * math:pow(10.0, rand:uniform(40) - 20)
+    end.
+
+-spec awkward_vec() -> rw_vec:vec().
+awkward_vec() -> {awkward_double(), awkward_double(), awkward_double()}.

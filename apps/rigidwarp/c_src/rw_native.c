@@ -86,6 +86,18 @@ static ERL_NIF_TERM make_doubles(ErlNifEnv *env, const double *d, int n) {
     return enif_make_tuple_from_array(env, elems, n);
 }
 
+/* A body's box and reach (rw_states:pack/4's measure) grown by its next
+   position, Step from the one before. */
+static inline void grow(double *box, double *reach, double x, double y, double z, double step) {
+    if (x < box[0]) box[0] = x;
+    if (y < box[1]) box[1] = y;
+    if (z < box[2]) box[2] = z;
+    if (x > box[3]) box[3] = x;
+    if (y > box[4]) box[4] = y;
+    if (z > box[5]) box[5] = z;
+    if (step > *reach) *reach = step;
+}
+
 /* A call runs for microseconds, well within a scheduler's time slice:
    free_run/13 takes at most this many substeps (the caller calls again
    for more), first_touch/10 leaves longer scans to the Erlang code. */
@@ -95,36 +107,53 @@ static ERL_NIF_TERM make_doubles(ErlNifEnv *env, const double *d, int n) {
 /* (a result Erlang would refuse: infinite or not a number) */
 #define CHECK(v) (bad |= !isfinite(v))
 
-/* A fixture near a body, as rw_narrow:fixture/3 tests it. */
-enum shape { PLANE, HOLLOW_BOX, OTHER };
+/* A fixture: its shape and its bounding box. */
+enum kind { K_PLANE, K_HOLLOW, K_SOLID, K_CYLINDER };
+
 struct fixture {
+    long idx;
     int bounded;
-    double box[6];     /* its bounding box, when bounded */
-    enum shape shape;
-    double a[3], b[3]; /* plane: normal and (b[0]) offset; hollow box: centre, half extents */
+    double box[6];
+    enum kind kind;
+    double a[3], b[3]; /* plane: normal; boxes: centre, half extents; cylinder: centre, axis */
+    double off, cr, h; /* plane offset; cylinder radius and half length */
 };
+
 #define MAX_NEAR 16
 
-/* #fixture{shape = Shape, box = Box} */
+static int get_long(ErlNifEnv *env, ERL_NIF_TERM t, long *out) {
+    ErlNifSInt64 v;
+    if (!enif_get_int64(env, t, &v)) return 0;
+    *out = (long)v;
+    return 1;
+}
+
+/* #fixture{idx, id, shape, box}, any of rw_shape's static shapes */
 static int get_fixture(ErlNifEnv *env, ERL_NIF_TERM term, struct fixture *f) {
     const ERL_NIF_TERM *rec, *shape;
-    int arity, shape_arity;
+    int arity, sa;
     if (!enif_get_tuple(env, term, &arity, &rec) || arity != 5 || !enif_is_identical(rec[0], atom_fixture) ||
-        !enif_get_tuple(env, rec[3], &shape_arity, &shape) || shape_arity < 1)
+        !get_long(env, rec[1], &f->idx) || !enif_get_tuple(env, rec[3], &sa, &shape) || sa < 1)
         return 0;
     if (enif_is_identical(rec[4], atom_unbounded)) f->bounded = 0;
     else if (get_doubles(env, rec[4], 6, f->box)) f->bounded = 1;
     else return 0;
-    if (enif_is_identical(shape[0], atom_plane) && shape_arity == 3) {
-        f->shape = PLANE;
-        return get_doubles(env, shape[1], 3, f->a) && enif_get_double(env, shape[2], &f->b[0]);
+    if (enif_is_identical(shape[0], atom_plane) && sa == 3) {
+        f->kind = K_PLANE;
+        return get_doubles(env, shape[1], 3, f->a) && enif_get_double(env, shape[2], &f->off);
     }
-    if (enif_is_identical(shape[0], atom_box) && shape_arity == 4 && enif_is_identical(shape[3], atom_hollow)) {
-        f->shape = HOLLOW_BOX;
+    if (enif_is_identical(shape[0], atom_box) && sa == 4) {
+        if (enif_is_identical(shape[3], atom_hollow)) f->kind = K_HOLLOW;
+        else if (enif_is_identical(shape[3], enif_make_atom(env, "solid"))) f->kind = K_SOLID;
+        else return 0;
         return get_doubles(env, shape[1], 3, f->a) && get_doubles(env, shape[2], 3, f->b);
     }
-    f->shape = OTHER;
-    return 1;
+    if (enif_is_identical(shape[0], enif_make_atom(env, "cylinder")) && sa == 5) {
+        f->kind = K_CYLINDER;
+        return get_doubles(env, shape[1], 3, f->a) && get_doubles(env, shape[2], 3, f->b) &&
+               enif_get_double(env, shape[3], &f->cr) && enif_get_double(env, shape[4], &f->h);
+    }
+    return 0;
 }
 
 /*
@@ -148,14 +177,14 @@ static int touches_none(const struct fixture *fs, int n, double x, double y, dou
             if (bad) break;
             if (rejected) continue;
         }
-        if (f->shape == PLANE) {
+        if (f->kind == K_PLANE) {
             /* Depth = R - (vdot(N, P) - Off), a contact when above 0.0 */
             double d1 = f->a[0] * x, d2 = f->a[1] * y, d3 = f->a[2] * z;
-            double dot = d1 + d2 + d3, rel = dot - f->b[0], depth = r - rel;
+            double dot = d1 + d2 + d3, rel = dot - f->off, depth = r - rel;
             CHECK(d1); CHECK(d2); CHECK(d3); CHECK(d1 + d2); CHECK(dot); CHECK(rel); CHECK(depth);
             if (bad) break;
             if (depth > 0.0) { *bad_out = 0; return 0; }
-        } else if (f->shape == HOLLOW_BOX) {
+        } else if (f->kind == K_HOLLOW) {
             /* the six depths rw_narrow tests before computing any wall */
             double cx = f->a[0], cy = f->a[1], cz = f->a[2], ex = f->b[0], ey = f->b[1], ez = f->b[2];
             double lo[3] = {cx - ex, cy - ey, cz - ez}, hi[3] = {cx + ex, cy + ey, cz + ez}, p[3] = {x, y, z};
@@ -350,13 +379,7 @@ static ERL_NIF_TERM free_run(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[]
             box[0] = nx; box[1] = ny; box[2] = nz; box[3] = nx; box[4] = ny; box[5] = nz;
             reach = 0.0;
         } else {
-            if (nx < box[0]) box[0] = nx;
-            if (ny < box[1]) box[1] = ny;
-            if (nz < box[2]) box[2] = nz;
-            if (nx > box[3]) box[3] = nx;
-            if (ny > box[4]) box[4] = ny;
-            if (nz > box[5]) box[5] = nz;
-            if (step > reach) reach = step;
+            grow(box, &reach, nx, ny, nz, step);
         }
         x = nx; y = ny; z = nz; vx = nvx; vy = nvy; vz = nvz;
         memcpy(q, nq, sizeof q);
@@ -459,17 +482,6 @@ static ERL_NIF_TERM first_touch(ErlNifEnv *env, int argc, const ERL_NIF_TERM arg
    scheduler should take */
 #define MAX_ISLAND_WORK 4096
 
-enum kind { K_PLANE, K_HOLLOW, K_SOLID, K_CYLINDER };
-
-struct ifixture {
-    long idx;
-    int bounded;
-    double box[6];
-    enum kind kind;
-    double a[3], b[3]; /* plane: normal; boxes: centre, half extents; cylinder: centre, axis */
-    double off, cr, h; /* plane offset; cylinder radius and half length */
-};
-
 struct sphere { long idx; double r, im, ii; };
 
 struct model {
@@ -506,13 +518,6 @@ static inline double eabs(double a) { return a < 0.0 ? -a : a; }
 static inline double dot3(const double *a, const double *b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
 static inline double len2_3(const double *a) { return a[0] * a[0] + a[1] * a[1] + a[2] * a[2]; }
 
-static int get_long(ErlNifEnv *env, ERL_NIF_TERM t, long *out) {
-    ErlNifSInt64 v;
-    if (!enif_get_int64(env, t, &v)) return 0;
-    *out = (long)v;
-    return 1;
-}
-
 /* #model{} with ccd false */
 static int get_model(ErlNifEnv *env, ERL_NIF_TERM term, struct model *m) {
     const ERL_NIF_TERM *r;
@@ -546,34 +551,6 @@ static int get_sphere(ErlNifEnv *env, ERL_NIF_TERM term, struct sphere *s) {
            enif_get_double(env, r[6], &s->ii);
 }
 
-/* #fixture{idx, id, shape, box}, any of rw_shape's static shapes */
-static int get_ifixture(ErlNifEnv *env, ERL_NIF_TERM term, struct ifixture *f) {
-    const ERL_NIF_TERM *rec, *shape;
-    int arity, sa;
-    if (!enif_get_tuple(env, term, &arity, &rec) || arity != 5 || !enif_is_identical(rec[0], atom_fixture) ||
-        !get_long(env, rec[1], &f->idx) || !enif_get_tuple(env, rec[3], &sa, &shape) || sa < 1)
-        return 0;
-    if (enif_is_identical(rec[4], atom_unbounded)) f->bounded = 0;
-    else if (get_doubles(env, rec[4], 6, f->box)) f->bounded = 1;
-    else return 0;
-    if (enif_is_identical(shape[0], atom_plane) && sa == 3) {
-        f->kind = K_PLANE;
-        return get_doubles(env, shape[1], 3, f->a) && enif_get_double(env, shape[2], &f->off);
-    }
-    if (enif_is_identical(shape[0], atom_box) && sa == 4) {
-        if (enif_is_identical(shape[3], atom_hollow)) f->kind = K_HOLLOW;
-        else if (enif_is_identical(shape[3], enif_make_atom(env, "solid"))) f->kind = K_SOLID;
-        else return 0;
-        return get_doubles(env, shape[1], 3, f->a) && get_doubles(env, shape[2], 3, f->b);
-    }
-    if (enif_is_identical(shape[0], enif_make_atom(env, "cylinder")) && sa == 5) {
-        f->kind = K_CYLINDER;
-        return get_doubles(env, shape[1], 3, f->a) && get_doubles(env, shape[2], 3, f->b) &&
-               enif_get_double(env, shape[3], &f->cr) && enif_get_double(env, shape[4], &f->h);
-    }
-    return 0;
-}
-
 /* rw_narrow:point_contact/3 */
 static int point_contact(const double *p, double r, const double *closest, struct contact *c) {
     double d[3] = {closest[0] - p[0], closest[1] - p[1], closest[2] - p[2]};
@@ -596,7 +573,7 @@ static void unit_axis(int axis, double s, double *out) {
  * in feature order, into c (up to 6) with their features; returns how
  * many.
  */
-static int fixture_contacts(const double *p, double r, const struct ifixture *f, struct contact *c, int *feature) {
+static int fixture_contacts(const double *p, double r, const struct fixture *f, struct contact *c, int *feature) {
     if (f->bounded && (p[0] + r < f->box[0] || p[0] - r > f->box[3] || p[1] + r < f->box[1] || p[1] - r > f->box[4] ||
                        p[2] + r < f->box[2] || p[2] - r > f->box[5]))
         return 0;
@@ -902,7 +879,7 @@ struct island {
     struct model m;
     int n, nf;
     struct sphere *s;
-    struct ifixture *f;
+    struct fixture *f;
     struct mstate *st, *next;
     double *seen;         /* per member: v (3) and w (3) after its fixture contacts */
     size_t *fixed_start;  /* per member: its fixture effects in fixed */
@@ -1219,7 +1196,7 @@ static ERL_NIF_TERM island_run(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv
         if (!get_sphere(env, spheres[k], &is.s[k]) || !get_mstate(env, states[k], is.m.rot, &is.st[k])) goto done;
     list = argv[5];
     for (unsigned i = 0; i < nf; i++)
-        if (!enif_get_list_cell(env, list, &head, &list) || !get_ifixture(env, head, &is.f[i])) goto done;
+        if (!enif_get_list_cell(env, list, &head, &list) || !get_fixture(env, head, &is.f[i])) goto done;
 
     if (!get_externals(env, argv[9], &is)) goto done;
 
@@ -1263,11 +1240,7 @@ static ERL_NIF_TERM island_run(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv
                 for (int i = 0; i < 3; i++) { box[i] = np[i]; box[3 + i] = np[i]; }
                 reach = 0.0;
             } else {
-                for (int i = 0; i < 3; i++) {
-                    if (np[i] < box[i]) box[i] = np[i];
-                    if (np[i] > box[3 + i]) box[3 + i] = np[i];
-                }
-                if (step > reach) reach = step;
+                grow(box, &reach, np[0], np[1], np[2], step);
             }
         }
         for (int k = 0; k < n; k++) {
@@ -1333,14 +1306,7 @@ static ERL_NIF_TERM measure(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
     feclearexcept(FE_ALL_EXCEPT);
     for (size_t i = 0; i < n; i++, p += size) {
         double x = get_double(p), y = get_double(p + 8), z = get_double(p + 16);
-        double step = (eabs(x - px) + eabs(y - py)) + eabs(z - pz);
-        if (x < box[0]) box[0] = x;
-        if (y < box[1]) box[1] = y;
-        if (z < box[2]) box[2] = z;
-        if (x > box[3]) box[3] = x;
-        if (y > box[4]) box[4] = y;
-        if (z > box[5]) box[5] = z;
-        if (step > reach) reach = step;
+        grow(box, &reach, x, y, z, (eabs(x - px) + eabs(y - py)) + eabs(z - pz));
         px = x; py = y; pz = z;
     }
     int overflow = fetestexcept(BAD_FLAGS) != 0;

@@ -106,7 +106,7 @@ chain_runs_the_same_both_ways_test() ->
     ?assertEqual([], [Case || Case <- Cases, not same_run(Case)]).
 
 same_run(Case) ->
-    {Native, Erlang} = both_ways(fun() -> run(Case) end),
+    {Native, Erlang} = rw_test_lib:both_ways(fun() -> run(Case) end),
     rw_test_lib:bitwise_equal(Native, Erlang).
 
 run({T, States, Last, Ctx, Island}) ->
@@ -118,7 +118,7 @@ run({T, States, Last, Ctx, Island}) ->
 %% badarith.
 chain_at_awkward_doubles_test() ->
     _ = rand:seed(exsss, {17, 19, 23}),
-    Results = [both_ways(fun() -> run(Case) end)
+    Results = [rw_test_lib:both_ways(fun() -> run(Case) end)
                || M <- models(), Fx <- sceneries(), _ <- lists:seq(1, 6), Case <- [awkward(group_case(M, Fx))]],
     [?assert(rw_test_lib:bitwise_equal(Native, Erlang)) || {Native, Erlang} <- Results],
     ?assertEqual([error, ok], lists:usort([element(1, Native) || {Native, _} <- Results])).
@@ -127,36 +127,12 @@ awkward({T, States, Last, Ctx, Island}) ->
     K = rand:uniform(tuple_size(States)),
     #st{p = P, v = V, w = W} = St = element(K, States),
     Awkward = case rand:uniform(4) of
-                  1 -> St#st{v = vec()};
-                  2 -> St#st{p = rw_vec:add(P, {pick(), 0.0, 0.0})};
-                  3 when W =/= undefined -> St#st{w = vec()};
-                  _ -> St#st{v = rw_vec:add(V, {0.0, pick(), 0.0})}
+                  1 -> St#st{v = rw_test_lib:awkward_vec()};
+                  2 -> St#st{p = rw_vec:add(P, {rw_test_lib:awkward_double(), 0.0, 0.0})};
+                  3 when W =/= undefined -> St#st{w = rw_test_lib:awkward_vec()};
+                  _ -> St#st{v = rw_vec:add(V, {0.0, rw_test_lib:awkward_double(), 0.0})}
               end,
     {T, setelement(K, States, Awkward), Last, Ctx, Island}.
-
-specials() -> [0.0, -0.0, 5.0e-324, -2.2250738585072014e-308, 1.0e300, -1.0e300, 1.7976931348623157e308, 3.5, -0.25].
-
-pick() ->
-    case rand:uniform(3) of
-        1 -> lists:nth(rand:uniform(length(specials())), specials());
-        _ -> (rand:uniform() - 0.5) * math:pow(10.0, rand:uniform(40) - 20)
-    end.
-
-vec() -> {pick(), pick(), pick()}.
-
-both_ways(Fun) ->
-    Native = outcome(Fun),
-    ok = rw_native:use(false),
-    try
-        {Native, outcome(Fun)}
-    after
-        ok = rw_native:use(true)
-    end.
-
-outcome(Fun) ->
-    try {ok, Fun()}
-    catch Class:Reason -> {Class, Reason}
-    end.
 
 %% A group of 2 to 12 spheres packed close enough that many touch, above
 %% the floor and among the fixtures, with a known contact from outside at

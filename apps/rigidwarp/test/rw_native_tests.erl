@@ -13,39 +13,13 @@
 loaded_test() ->
     ?assert(rw_native:loaded()).
 
-%% Fun's result (or exception) with the C loops, and with the Erlang code
-%% alone.
-both_ways(Fun) ->
-    Native = outcome(Fun),
-    ok = rw_native:use(false),
-    try
-        {Native, outcome(Fun)}
-    after
-        ok = rw_native:use(true)
-    end.
-
-outcome(Fun) ->
-    try {ok, Fun()}
-    catch Class:Reason -> {Class, Reason}
-    end.
-
-specials() -> [0.0, -0.0, 5.0e-324, -2.2250738585072014e-308, 1.0e300, -1.0e300, 1.7976931348623157e308, 3.5, -0.25].
-
-pick() ->
-    case rand:uniform(3) of
-        1 -> lists:nth(rand:uniform(length(specials())), specials());
-        _ -> (rand:uniform() - 0.5) * math:pow(10.0, rand:uniform(40) - 20)
-    end.
-
-vec() -> {pick(), pick(), pick()}.
-
 %% A body alone in free flight, no fixture, at awkward positions, velocities
 %% and spins, with every integrator, across sync points and a known
 %% contact: rw_chain:run/5's states, sync points and island, or its
 %% exception, the same both ways.
 free_flight_at_awkward_doubles_test() ->
     _ = rand:seed(exsss, {5, 6, 7}),
-    Results = [both_ways(fun() -> run(Case) end) || K <- lists:seq(1, 600), Case <- [free_case(K)]],
+    Results = [rw_test_lib:both_ways(fun() -> run(Case) end) || K <- lists:seq(1, 600), Case <- [free_case(K)]],
     [?assert(rw_test_lib:bitwise_equal(Native, Erlang)) || {Native, Erlang} <- Results],
     %% the cases run to their end and, some, into badarith
     Kinds = lists:usort([element(1, Native) || {Native, _} <- Results]),
@@ -55,7 +29,7 @@ free_case(K) ->
     Rot = K rem 2 =:= 0,
     Gravity = case K rem 5 of
                   0 -> undefined;
-                  _ -> vec()
+                  _ -> rw_test_lib:awkward_vec()
               end,
     Integrator = lists:nth(K rem 3 + 1, [symplectic_euler, explicit_euler, verlet]),
     M = #model{gravity = Gravity, integrator = Integrator, rotation = Rot, dt = lists:nth(K rem 2 + 1, [0.001, 1.0e-6])},
@@ -64,10 +38,10 @@ free_case(K) ->
              true ->
                  W = case rand:uniform(3) of
                          1 -> {-0.0, 0.0, -0.0};
-                         _ -> vec()
+                         _ -> rw_test_lib:awkward_vec()
                      end,
-                 #st{p = vec(), v = vec(), q = {{0.0, 0.0, 0.0}, 1.0}, w = W};
-             false -> #st{p = vec(), v = vec()}
+                 #st{p = rw_test_lib:awkward_vec(), v = rw_test_lib:awkward_vec(), q = {{0.0, 0.0, 0.0}, 1.0}, w = W};
+             false -> #st{p = rw_test_lib:awkward_vec(), v = rw_test_lib:awkward_vec()}
          end,
     T = rand:uniform(50),
     Last = T + rand:uniform(100),
@@ -85,7 +59,7 @@ run({T, St, Last, Ctx, Island}) -> rw_chain:run(T, {St}, Last, Ctx, Island).
 %% same place, near overflow, with and without the bodies' reach.
 first_touch_at_awkward_doubles_test() ->
     _ = rand:seed(exsss, {8, 9, 10}),
-    Results = [both_ways(fun() -> first_touch(Case) end) || _ <- lists:seq(1, 2000), Case <- touch_case()],
+    Results = [rw_test_lib:both_ways(fun() -> first_touch(Case) end) || _ <- lists:seq(1, 2000), Case <- touch_case()],
     [?assert(rw_test_lib:bitwise_equal(Native, Erlang)) || {Native, Erlang} <- Results],
     Found = lists:usort([case R of {ok, K} when is_integer(K) -> found; {ok, none} -> none; _ -> raised end
                          || {R, _} <- Results]),
@@ -94,9 +68,9 @@ first_touch_at_awkward_doubles_test() ->
 %% Two bodies' packed paths (none where building them overflows).
 touch_case() ->
     N = rand:uniform(40),
-    Base = vec(),
+    Base = rw_test_lib:awkward_vec(),
     Path = fun() ->
-                   Step = vec(),
+                   Step = rw_test_lib:awkward_vec(),
                    Scale = math:pow(10.0, -rand:uniform(300)),
                    [#st{p = rw_vec:madd(Base, Step, float(I) * Scale), v = {0.0, 0.0, 0.0}} || I <- lists:seq(1, N)]
            end,
@@ -104,7 +78,7 @@ touch_case() ->
         A = rw_states:pack(Path(), undefined, false, false),
         B = rw_states:pack(Path(), undefined, false, false),
         I = rand:uniform(N),
-        [{A, I, B, I, N - I, lists:nth(rand:uniform(4), [0.0, 1.0e-300, 1.0, abs(pick())])}]
+        [{A, I, B, I, N - I, lists:nth(rand:uniform(4), [0.0, 1.0e-300, 1.0, abs(rw_test_lib:awkward_double())])}]
     catch
         error:badarith -> []
     end.
@@ -115,7 +89,7 @@ first_touch({A, IA, B, IB, Left, Sum}) -> rw_states:first_touch(A, IA, B, IB, Le
 %% positions: signed zeros, subnormals, steps that overflow.
 seal_at_awkward_doubles_test() ->
     _ = rand:seed(exsss, {11, 12, 13}),
-    Results = [both_ways(fun() -> rw_states:seal(Bin, Rot, false) end)
+    Results = [rw_test_lib:both_ways(fun() -> rw_states:seal(Bin, Rot, false) end)
                || _ <- lists:seq(1, 500), Rot <- [false, true],
                   Bin <- [<< <<(rw_states:append(<<>>, St, undefined, Rot))/binary>>
                              || St <- [awkward_state(Rot) || _ <- lists:seq(1, rand:uniform(20))] >>]],
@@ -123,8 +97,8 @@ seal_at_awkward_doubles_test() ->
     Reaches = lists:usort([is_float(rw_states:reach(Sealed)) || {{ok, Sealed}, _} <- Results]),
     ?assertEqual([false, true], Reaches).
 
-awkward_state(false) -> #st{p = vec(), v = vec()};
-awkward_state(true) -> #st{p = vec(), v = vec(), q = {vec(), pick()}, w = vec()}.
+awkward_state(false) -> #st{p = rw_test_lib:awkward_vec(), v = rw_test_lib:awkward_vec()};
+awkward_state(true) -> #st{p = rw_test_lib:awkward_vec(), v = rw_test_lib:awkward_vec(), q = {rw_test_lib:awkward_vec(), rw_test_lib:awkward_double()}, w = rw_test_lib:awkward_vec()}.
 
 %% A step longer than the C loop takes in one call (4096 substeps) and a
 %% scan longer than it takes at all: the same results, over several calls
@@ -134,14 +108,14 @@ long_runs_test() ->
     Sphere = #sphere{idx = 1, id = <<"s">>, radius = 0.5, mass = 1.0, inv_mass = 1.0, inv_inertia = 10.0},
     Case = {0, #st{p = {0.0, 100.0, 0.0}, v = {1.0, 2.0, -0.0}}, 10000,
             {M, 1, none, rw_timeline:new(), rw_sync:new(10000, 20000, 10000, 0)}, rw_island:new(M, [Sphere], [])},
-    {Native, Erlang} = both_ways(fun() -> run(Case) end),
+    {Native, Erlang} = rw_test_lib:both_ways(fun() -> run(Case) end),
     ?assertMatch({ok, {_, [_], _}}, Native),
     ?assert(rw_test_lib:bitwise_equal(Native, Erlang)),
     {ok, {_, [Packed], _}} = Native,
     ?assertEqual(10000, rw_states:count(Packed)),
     Still = rw_states:pack(lists:duplicate(70001, #st{p = {0.0, 0.0, 0.0}, v = {0.0, 0.0, 0.0}}), undefined, false, false),
     Far = rw_states:pack(lists:duplicate(70001, #st{p = {3.0, 0.0, 0.0}, v = {0.0, 0.0, 0.0}}), undefined, false, false),
-    ?assertEqual({{ok, none}, {ok, none}}, both_ways(fun() -> rw_states:first_touch(Still, 1, Far, 1, 70000, 1.0) end)).
+    ?assertEqual({{ok, none}, {ok, none}}, rw_test_lib:both_ways(fun() -> rw_states:first_touch(Still, 1, Far, 1, 70000, 1.0) end)).
 
 %% Arguments the C code does not take are the Erlang code's.
 fallback_test() ->
