@@ -133,31 +133,45 @@ segs([{_, _, {_, _, _, OBounds} = W, OMs} | Rest], Bounds, Ta, Tb, Ms, Acc) ->
            end,
     segs(Rest, Bounds, Ta, Tb, Ms, Acc1).
 
-%% Windows keyed by {member, other member, other write's T0}.
+%% Windows keyed by member and other member (pair_key/2: an integer, as
+%% map keys are compared at every lookup), per other write's T0.
 member_windows([], _OMs, _W, Acc) -> Acc;
 member_windows([{I, A, B} | Rest], OMs, {_, OT0, _, _} = W, Acc) ->
     Acc1 = lists:foldl(fun({O, OA, OB}, Ac) ->
                                Lo = max(A, OA),
                                Hi = min(B, OB),
-                               Key = {I, O, OT0},
+                               Key = pair_key(I, O),
                                if
                                    Lo > Hi -> Ac;
                                    true ->
                                        case Ac of
-                                           #{Key := {_, L, H}} -> Ac#{Key := {W, min(L, Lo), max(H, Hi)}};
-                                           _ -> Ac#{Key => {W, Lo, Hi}}
+                                           #{Key := Ws} -> Ac#{Key := window(OT0, W, Lo, Hi, Ws)};
+                                           _ -> Ac#{Key => [{OT0, W, Lo, Hi}]}
                                        end
                                end
                        end, Acc, OMs),
     member_windows(Rest, OMs, W, Acc1).
 
+%% (a scene's bodies by rank: indices far below 2^24)
+-define(PAIR, 16#1000000).
+pair_key(I, O) when O < ?PAIR -> I * ?PAIR + O.
+
+%% The window on the other write at OT0 widened by Lo..Hi.
+window(OT0, W, Lo, Hi, [{OT0, _, L, H} | Rest]) -> [{OT0, W, min(L, Lo), max(H, Hi)} | Rest];
+window(OT0, W, Lo, Hi, [Other | Rest]) -> [Other | window(OT0, W, Lo, Hi, Rest)];
+window(OT0, W, Lo, Hi, []) -> [{OT0, W, Lo, Hi}].
+
 scan_windows([], _Write, Best, _S) -> Best;
-scan_windows([{{I, O, _}, {{_, _, OMembers, _}, Lo, Hi}} | Rest], {_, _, Members, _} = Write, Best, S) ->
+scan_windows([{Key, Ws} | Rest], Write, Best, S) ->
+    scan_windows(Rest, Write, scan_pair(Key div ?PAIR, Key rem ?PAIR, Ws, Write, Best, S), S).
+
+scan_pair(_I, _O, [], _Write, Best, _S) -> Best;
+scan_pair(I, O, [{_, {_, _, OMembers, _}, Lo, Hi} | Ws], {_, _, Members, _} = Write, Best, S) ->
     Mine = maps:get(I, Members),
     Other = maps:get(O, OMembers),
     case apart(Mine, Other) of
-        true -> scan_windows(Rest, Write, Best, S);
-        false -> scan_windows(Rest, Write, scan(Lo, bound(Hi, Best), Mine, Other, Best, S), S)
+        true -> scan_pair(I, O, Ws, Write, Best, S);
+        false -> scan_pair(I, O, Ws, Write, scan(Lo, bound(Hi, Best), Mine, Other, Best, S), S)
     end.
 
 bound(Hi, none) -> Hi;
