@@ -19,8 +19,10 @@ suite() -> [{timetrap, {minutes, 10}}].
 all() -> [random_kills_change_no_frame, two_kills_at_once, past_the_budget_crashes_promptly, api_after_crash_and_stop,
           schedulers_are_lent_not_taken, unread_frames_keep_whole_checkpoints].
 
-%% Contact-heavy scenes, each over a part where contacts go on all along.
--define(SCENES, [{"bouncing_50_250", scenario, 1000}, {"pile_40", test, 1200}, {"rain_on_logs", test, 800},
+%% Contact-heavy scenes, each over a part where contacts go on all along,
+%% and long enough (0.1-0.2 s of wall time on two cores) for the kills,
+%% 0-150 ms apart, to land while it runs.
+-define(SCENES, [{"bouncing_50_250", scenario, 4000}, {"pile_40", test, 1200}, {"rain_on_logs", test, 800},
                  {"cylinders_200", scenario, 700}]).
 
 init_per_suite(Config) ->
