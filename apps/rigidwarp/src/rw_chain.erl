@@ -147,21 +147,13 @@ flight(T, X, Y, Z, VX, VY, VZ, Q, W, Last, {#model{dt = Dt, gravity = G, integra
                                     Bin1, First1, NX0, NY0, NZ0, NX1, NY1, NZ1, Reach1, 0)
             end;
         _ when Next =/= T ->
-            %% touching a fixture: the C island, up to the group's start
-            %% or Last, given the known contacts with the outside
-            {M, _, Base, TL, Cal} = Ctx,
-            {_, Spheres, Fixtures} = rw_island:bodies(Island),
-            Stop = case Base of
-                       {TB, _} when TB >= T, TB < Last -> TB;
-                       _ -> Last
-                   end,
-            Outside = [{TC, Member, Partner, Effect} || TC <- Busy, TC < Stop,
-                                                        {Member, {{Partner, 0}, Effect}} <- rw_timeline:external(TC, TL)],
-            case rw_native:island_run(T, Stop, DtT, M, Spheres, Fixtures,
-                                      {#st{p = {X, Y, Z}, v = {VX, VY, VZ}, q = Q, w = W}},
-                                      {First, {X0, Y0, Z0, X1, Y1, Z1}, Reach}, syncs(T, Stop, DtT, Cal), Outside) of
+            %% touching a fixture: the C island (Busy holds the times of
+            %% the known contacts, and the group's start)
+            case native_island(T, Last, Ctx, Island, {#st{p = {X, Y, Z}, v = {VX, VY, VZ}, q = Q, w = W}},
+                               {First, {X0, Y0, Z0, X1, Y1, Z1}, Reach}, Busy) of
                 {T1, {#st{p = {NX, NY, NZ}, v = {NVX, NVY, NVZ}, q = NQ, w = NW}}, [States],
                  {First1, {NX0, NY0, NZ0, NX1, NY1, NZ1}, Reach1}, More} when T1 > T ->
+                    {_, _, _, _, Cal} = Ctx,
                     flight(T1, NX, NY, NZ, NVX, NVY, NVZ, NQ, NW, Last, Ctx, Zone, Island, rw_sync:next_at(T1, Cal),
                            [B || B <- Busy, B >= T1], lists:reverse(More, Passed), <<Bin/binary, States/binary>>,
                            First1, NX0, NY0, NZ0, NX1, NY1, NZ1, Reach1, 0);
@@ -278,16 +270,8 @@ append(Bin, X, Y, Z, VX, VY, VZ, {{QX, QY, QZ}, QW}, {WX, WY, WZ}) ->
 %% Erlang island's.
 chain(T, _States, Last, _Ctx, Island, Passed, Bins, _Native) when T >= Last ->
     {lists:reverse(Passed), Bins, Island};
-chain(T, States, Last, {M, Dt, Base, TL, Cal} = Ctx, Island, Passed, Bins, Contacts) when is_list(Contacts) ->
-    Stop = case Base of
-               {TB, _} when TB >= T, TB < Last -> TB;
-               _ -> Last
-           end,
-    {_, Spheres, Fixtures} = rw_island:bodies(Island),
-    Outside = [{TC, Member, Partner, Effect} || TC <- Contacts, TC >= T, TC < Stop,
-                                                {Member, {{Partner, 0}, Effect}} <- rw_timeline:external(TC, TL)],
-    case Stop > T andalso
-        rw_native:island_run(T, Stop, Dt, M, Spheres, Fixtures, States, none, syncs(T, Stop, Dt, Cal), Outside) of
+chain(T, States, Last, Ctx, Island, Passed, Bins, Contacts) when is_list(Contacts) ->
+    case native_island(T, Last, Ctx, Island, States, none, Contacts) of
         {T1, Next, New, none, More} when T1 > T ->
             chain(T1, Next, Last, Ctx, Island, lists:reverse(More, Passed), append_all(Bins, New), Contacts);
         _ ->
@@ -295,6 +279,24 @@ chain(T, States, Last, {M, Dt, Base, TL, Cal} = Ctx, Island, Passed, Bins, Conta
     end;
 chain(T, States, Last, Ctx, Island, Passed, Bins, Native) ->
     chain_one(T, States, Last, Ctx, Island, Passed, Bins, Native).
+
+%% The C island's substeps (rw_native:island_run/10) from T up to the
+%% group's start or Last, whichever comes first (the group's start is the
+%% Erlang island's), with the known contacts at the times Contacts from
+%% the outside and the sync points on the way; fallback where it has none
+%% to take.
+native_island(T, Last, {M, Dt, Base, TL, Cal}, Island, States, Acc, Contacts) ->
+    Stop = case Base of
+               {TB, _} when TB >= T, TB < Last -> TB;
+               _ -> Last
+           end,
+    {_, Spheres, Fixtures} = rw_island:bodies(Island),
+    Outside = [{TC, Member, Partner, Effect} || TC <- Contacts, TC >= T, TC < Stop,
+                                                {Member, {{Partner, 0}, Effect}} <- rw_timeline:external(TC, TL)],
+    case Stop > T of
+        true -> rw_native:island_run(T, Stop, Dt, M, Spheres, Fixtures, States, Acc, syncs(T, Stop, Dt, Cal), Outside);
+        false -> fallback
+    end.
 
 %% The sync points at the substeps from T (Dt apart) before Stop.
 syncs(T, Stop, Dt, Cal) -> syncs(T, T, Stop, Dt, Cal).
