@@ -20,7 +20,8 @@
 %% Bounds is a box that holds the sphere (swept, with CCD) at all of them.
 -type payload() :: {Idx :: non_neg_integer(), Writer :: term(), #sphere{}, T0 :: non_neg_integer(),
                     States :: rw_states:packed(), Bounds :: bounds()}.
--type bounds() :: rw_shape:box6().
+%% (on a grid of integers, rounded outwards: rw_tvht_plan)
+-type bounds() :: {integer(), integer(), integer(), integer(), integer(), integer()}.
 %% One entity's step: the writer, its first substep, its members' payloads
 %% and a box that holds them all.
 -type write() :: {Writer :: term(), T0 :: non_neg_integer(), #{non_neg_integer() => payload()}, bounds()}.
@@ -38,8 +39,16 @@
 %% The ids of the contacts at T between the writer's members and other
 %% bodies, by {member idx, partner idx}.
 -type ids() :: #{{non_neg_integer(), non_neg_integer()} => cid()}.
-%% A write's presence in one cell.
--type seg() :: {Ta :: non_neg_integer(), Tb :: non_neg_integer(), write(), [member_span()]}.
+%% A write's presence in one cell, from Ta to Tb, with the write's box
+%% beside the times: a probe reads both of every other writer's newest
+%% segments in its cells, and at tens of thousands of bodies each read
+%% from the write behind it would miss the cache.
+-record(seg, {ta :: non_neg_integer(), tb :: non_neg_integer(),
+              x0 :: integer(), y0 :: integer(), z0 :: integer(), x1 :: integer(), y1 :: integer(), z1 :: integer(),
+              write :: write(), members :: [member_span()]}).
+-type seg() :: #seg{}.
+%% A cell as a key of the bucket's map (key/1).
+-type cell_key() :: non_neg_integer() | rw_hash:cell().
 
 -record(cells, {
     model :: #model{},
@@ -47,7 +56,7 @@
     %% per cell, per writer, its segments newest first: an entity writes
     %% forward in time and a rollback cuts the newest ones, so each list is
     %% sorted and a probe near the present reads only its head
-    cells = #{} :: #{rw_hash:cell() => #{term() => [seg()]}},
+    cells = #{} :: #{cell_key() => #{term() => [seg()]}},
     %% contacts reported from this bucket, by body: [{T, Cid}]
     by_body = #{} :: #{non_neg_integer() => [{non_neg_integer(), cid()}]},
     contacts = #{} :: #{cid() => {Detector :: term(), Other :: term()}},
@@ -72,7 +81,7 @@ contact_ids(T, Pairs, Uniques) ->
 gc(Gvt, #cells{gc_at = At} = S) when Gvt < At -> S;
 gc(Gvt, #cells{cells = Cells, by_body = By, contacts = C, dt = Dt} = S) ->
     Recent = fun(_, Segs) ->
-                     case lists:takewhile(fun({_, Tb, _, _}) -> Tb >= Gvt end, Segs) of
+                     case lists:takewhile(fun(#seg{tb = Tb}) -> Tb >= Gvt end, Segs) of
                          [] -> false;
                          Kept -> {true, Kept}
                      end
@@ -104,10 +113,11 @@ sweep_every(Dt) -> 32 * Dt.
 probe({Me, _, _, Bounds} = Write, Spans, #cells{cells = Cells} = S) ->
     Windows = lists:foldl(
                 fun({Cell, Ta, Tb, Ms}, Acc) ->
+                        Key = key(Cell),
                         case Cells of
                             %% (maps:to_list is one BIF call; maps:fold steps
                             %% an iterator in Erlang)
-                            #{Cell := ByWriter} -> cell_windows(maps:to_list(ByWriter), Me, Bounds, Ta, Tb, Ms, Acc);
+                            #{Key := ByWriter} -> cell_windows(maps:to_list(ByWriter), Me, Bounds, Ta, Tb, Ms, Acc);
                             _ -> Acc
                         end
                 end, #{}, Spans),
@@ -124,10 +134,11 @@ cell_windows([{_, Segs} | Rest], Me, Bounds, Ta, Tb, Ms, Acc) ->
 %% whose write is not apart from the prober's, the member pairs that meet
 %% in time.
 segs([], _Bounds, _Ta, _Tb, _Ms, Acc) -> Acc;
-segs([{_, OTb, _, _} | _], _Bounds, Ta, _Tb, _Ms, Acc) when OTb < Ta -> Acc;
-segs([{OTa, _, _, _} | Rest], Bounds, Ta, Tb, Ms, Acc) when OTa > Tb -> segs(Rest, Bounds, Ta, Tb, Ms, Acc);
-segs([{_, _, {_, _, _, OBounds} = W, OMs} | Rest], Bounds, Ta, Tb, Ms, Acc) ->
-    Acc1 = case apart(Bounds, OBounds) of
+segs([#seg{tb = OTb} | _], _Bounds, Ta, _Tb, _Ms, Acc) when OTb < Ta -> Acc;
+segs([#seg{ta = OTa} | Rest], Bounds, Ta, Tb, Ms, Acc) when OTa > Tb -> segs(Rest, Bounds, Ta, Tb, Ms, Acc);
+segs([#seg{x0 = BX0, y0 = BY0, z0 = BZ0, x1 = BX1, y1 = BY1, z1 = BZ1, write = W, members = OMs} | Rest],
+     {AX0, AY0, AZ0, AX1, AY1, AZ1} = Bounds, Ta, Tb, Ms, Acc) ->
+    Acc1 = case AX1 < BX0 orelse BX1 < AX0 orelse AY1 < BY0 orelse BY1 < AY0 orelse AZ1 < BZ0 orelse BZ1 < AZ0 of
                true -> Acc;
                false -> member_windows(Ms, OMs, W, Acc)
            end,
@@ -177,10 +188,8 @@ scan_pair(I, O, [{_, {_, _, OMembers, _}, Lo, Hi} | Ws], {_, _, Members, _} = Wr
 bound(Hi, none) -> Hi;
 bound(Hi, {BT, _}) -> min(Hi, BT).
 
-%% Two boxes (of writes or of payloads) that do not overlap: what is
-%% inside cannot touch.
-apart({_, _, _, _, _, A}, {_, _, _, _, _, B}) when is_tuple(A) -> apart(A, B);
-apart({AX0, AY0, AZ0, AX1, AY1, AZ1}, {BX0, BY0, BZ0, BX1, BY1, BZ1}) ->
+%% Two payloads whose boxes do not overlap: they cannot touch.
+apart({_, _, _, _, _, {AX0, AY0, AZ0, AX1, AY1, AZ1}}, {_, _, _, _, _, {BX0, BY0, BZ0, BX1, BY1, BZ1}}) ->
     AX1 < BX0 orelse BX1 < AX0 orelse AY1 < BY0 orelse BY1 < AY0 orelse AZ1 < BZ0 orelse BZ1 < AZ0.
 
 %% First LVT in [Lo, Hi] at which the two bodies touch. Without CCD the
@@ -233,13 +242,16 @@ narrow(#model{ccd = true}, {_, _, #sphere{radius = RA}, #st{p = PA}, DA},
 %% there (in this bucket).
 -spec store(term(), write(), [span()], {non_neg_integer(), [hit()]} | none,
             non_neg_integer(), ids(), cells()) -> cells().
-store(Owner, Write, Spans, Result, UpTo, Ids, #cells{cells = Cells} = S) ->
+store(Owner, {_, _, _, {X0, Y0, Z0, X1, Y1, Z1}} = Write, Spans, Result, UpTo, Ids, #cells{cells = Cells} = S) ->
     Cells1 = lists:foldl(fun({Cell, Ta, Tb, Ms}, Acc) when Ta =< UpTo ->
-                                 Seg = {Ta, min(Tb, UpTo), Write, [{I, A, min(B, UpTo)} || {I, A, B} <- Ms, A =< UpTo]},
+                                 Key = key(Cell),
+                                 Seg = #seg{ta = Ta, tb = min(Tb, UpTo), x0 = X0, y0 = Y0, z0 = Z0, x1 = X1, y1 = Y1,
+                                            z1 = Z1, write = Write,
+                                            members = [{I, A, min(B, UpTo)} || {I, A, B} <- Ms, A =< UpTo]},
                                  case Acc of
-                                     #{Cell := #{Owner := Segs} = ByW} -> Acc#{Cell := ByW#{Owner := [Seg | Segs]}};
-                                     #{Cell := ByW} -> Acc#{Cell := ByW#{Owner => [Seg]}};
-                                     _ -> Acc#{Cell => #{Owner => [Seg]}}
+                                     #{Key := #{Owner := Segs} = ByW} -> Acc#{Key := ByW#{Owner := [Seg | Segs]}};
+                                     #{Key := ByW} -> Acc#{Key := ByW#{Owner => [Seg]}};
+                                     _ -> Acc#{Key => #{Owner => [Seg]}}
                                  end;
                             (_, Acc) -> Acc
                          end, Cells, Spans),
@@ -265,12 +277,13 @@ record(Cid, T, Idx, Detector, OIdx, Other, #cells{by_body = By, contacts = C} = 
 delete(Owner, Idxs, R, Owned, #cells{cells = Cells, by_body = By, contacts = C} = S) ->
     Cells1 = lists:foldl(
                fun(Cell, Acc) ->
+                       Key = key(Cell),
                        case Acc of
-                           #{Cell := #{Owner := Segs} = ByW} ->
+                           #{Key := #{Owner := Segs} = ByW} ->
                                case truncate(Segs, R) of
-                                   [] when map_size(ByW) =:= 1 -> maps:remove(Cell, Acc);
-                                   [] -> Acc#{Cell := maps:remove(Owner, ByW)};
-                                   Kept -> Acc#{Cell := ByW#{Owner := Kept}}
+                                   [] when map_size(ByW) =:= 1 -> maps:remove(Key, Acc);
+                                   [] -> Acc#{Key := maps:remove(Owner, ByW)};
+                                   Kept -> Acc#{Key := ByW#{Owner := Kept}}
                                end;
                            _ -> Acc
                        end
@@ -284,8 +297,18 @@ delete(Owner, Idxs, R, Owned, #cells{cells = Cells, by_body = By, contacts = C} 
     Lost = lists:ukeysort(1, [{Cid, D, O} || {_, Cid} <- Gone, {D, O} <- [maps:get(Cid, C, none)]]),
     {Lost, S#cells{cells = Cells1, by_body = By1, contacts = maps:without([Cid || {_, Cid} <- Gone], C)}}.
 
+%% A cell's key in the bucket's map: one integer for the cells within
+%% 2^18 of the origin on every axis (hashed and compared as one word),
+%% else the cell itself.
+-define(KEY_OFFSET, 16#40000).
+key({X, Y, Z}) when X >= -?KEY_OFFSET, X < ?KEY_OFFSET, Y >= -?KEY_OFFSET, Y < ?KEY_OFFSET,
+                    Z >= -?KEY_OFFSET, Z < ?KEY_OFFSET ->
+    ((X + ?KEY_OFFSET) bsl 38) bor ((Y + ?KEY_OFFSET) bsl 19) bor (Z + ?KEY_OFFSET);
+key(Cell) -> Cell.
+
 %% A writer's segments (newest first) end at R at the latest.
-truncate([{Ta, _, _, _} | Rest], R) when Ta > R -> truncate(Rest, R);
-truncate([{Ta, Tb, W, Ms} | Rest], R) when Tb > R -> [{Ta, R, W, [{I, A, min(B, R)} || {I, A, B} <- Ms, A =< R]} | Rest];
+truncate([#seg{ta = Ta} | Rest], R) when Ta > R -> truncate(Rest, R);
+truncate([#seg{tb = Tb, members = Ms} = Seg | Rest], R) when Tb > R ->
+    [Seg#seg{tb = R, members = [{I, A, min(B, R)} || {I, A, B} <- Ms, A =< R]} | Rest];
 truncate(Segs, _R) -> Segs.
 

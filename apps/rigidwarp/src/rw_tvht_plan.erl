@@ -5,7 +5,7 @@
 %% order, the order in which the buckets are locked (Lemma 1).
 -module(rw_tvht_plan).
 -include("rigidwarp.hrl").
--export([write/7, write/8, for_bucket/2, first_contacts/2, delete/1]).
+-export([write/7, write/8, for_bucket/2, first_contacts/2, delete/1, grid/1, on_grid/2]).
 -export_type([plan/0, where/0, cache/0]).
 
 %% Per bucket index, ascending: the cells written and the spans in them.
@@ -25,14 +25,14 @@
 -spec write(term(), non_neg_integer(), tuple(), [rw_states:packed()], #model{}, {float(), pos_integer()},
             pos_integer() | rw_place:placement()) -> {rw_cells:write(), plan()}.
 write(Writer, T0, Spheres, Steps, #model{ccd = Ccd}, {CellSize, Dt}, NBuckets) ->
-    {Members, Write} = members(Writer, T0, Spheres, Steps, Ccd),
+    {Members, Write} = members(Writer, T0, Spheres, Steps, Ccd, grid(CellSize)),
     Plan = plan([{Idx, cell_spans(T0, Spans, CellSize, Dt)} || {{Idx, _, _, _, _, _}, Spans} <- Members], NBuckets),
     {Write, Plan}.
 
 %% Each member's payload with what cell_spans/4 needs, and the write of
 %% them all.
-members(Writer, T0, Spheres, Steps, Ccd) ->
-    Members = [member_write(Writer, element(K, Spheres), T0, Packed, Ccd)
+members(Writer, T0, Spheres, Steps, Ccd, Grid) ->
+    Members = [member_write(Writer, element(K, Spheres), T0, Packed, Ccd, Grid)
                || {K, Packed} <- lists:zip(lists:seq(1, length(Steps)), Steps)],
     {Members, {Writer, T0, maps:from_list([{Idx, Payload} || {{Idx, _, _, _, _, _} = Payload, _} <- Members]),
                union([Bounds || {{_, _, _, _, _, Bounds}, _} <- Members])}}.
@@ -51,7 +51,7 @@ members(Writer, T0, Spheres, Steps, Ccd) ->
             pos_integer() | rw_place:placement(), cache()) -> {rw_cells:write(), plan(), cache()}.
 write(Writer, T0, Spheres, Steps, #model{ccd = false}, {CellSize, Dt}, NBuckets, Cache) ->
     [N | Counts] = [rw_states:count(Packed) || Packed <- Steps],
-    {Members, Write} = members(Writer, T0, Spheres, Steps, false),
+    {Members, Write} = members(Writer, T0, Spheres, Steps, false, grid(CellSize)),
     Shape = [{Idx, all_box(Extents, R, CellSize)} || {{Idx, _, _, _, _, _}, {_, Extents, R}} <- Members],
     Tb = T0 + (N - 1) * Dt,
     Even = lists:all(fun(C) -> C =:= N end, Counts),
@@ -157,14 +157,14 @@ edit_all(Cells, NB, Edit, Skeleton, Touched) ->
                 end, Touched, Cells).
 
 %% One member's payload for the buckets, and what cell_spans/4 needs.
-member_write(Writer, #sphere{idx = Idx, radius = R} = S, T0, Packed, Ccd) ->
+member_write(Writer, #sphere{idx = Idx, radius = R} = S, T0, Packed, Ccd, Grid) ->
     Extents = case Ccd of
                   false -> rw_states:extents(Packed);
                   true ->
                       {X, Y, Z} = rw_states:position(Packed, 1),
                       extend(1, rw_states:count(Packed), Packed, X, Y, Z, X, Y, Z)
               end,
-    {{Idx, Writer, S, T0, Packed, bounds(Extents, R)}, {Packed, Extents, R}}.
+    {{Idx, Writer, S, T0, Packed, on_grid(bounds(Extents, R), Grid)}, {Packed, Extents, R}}.
 
 %% A write as one bucket of several needs it: with the payloads of only
 %% the members in its cells (each bucket copies and keeps what it gets).
@@ -209,6 +209,30 @@ union([{X0, Y0, Z0, X1, Y1, Z1} | Rest]) ->
 bounds({X0, Y0, Z0, X1, Y1, Z1}, R) ->
     Pad = R + 1.0e-9 * (R + lists:max([abs(X0), abs(Y0), abs(Z0), abs(X1), abs(Y1), abs(Z1)])),
     {X0 - Pad, Y0 - Pad, Z0 - Pad, X1 + Pad, Y1 + Pad, Z1 + Pad}.
+
+%% The buckets compare boxes of writes and payloads at every probe, many
+%% more times than boxes are made: they get them rounded outwards to a grid
+%% of 1/Grid m, as integers, which compare without a float's indirection
+%% and take a third of the words. A rounded box holds the exact one, so
+%% boxes apart on the grid are apart; Grid is a power of two (the products
+%% are exact) of about 64 per cell, at least 1, and coordinates beyond
+%% ?FAR m go to the grid's ends.
+-define(FAR, 1.0e12).
+-define(GRID_END, 16#100000000000000).
+-spec grid(float()) -> float().
+grid(CellSize) ->
+    math:pow(2, max(0, min(16, round(math:log2(64 / CellSize))))).
+
+%% The integer box on the grid of 1/Grid m that holds a box.
+-spec on_grid(rw_shape:box6(), float()) -> rw_cells:bounds().
+on_grid({X0, Y0, Z0, X1, Y1, Z1}, Grid) ->
+    {low(X0, Grid), low(Y0, Grid), low(Z0, Grid), high(X1, Grid), high(Y1, Grid), high(Z1, Grid)}.
+
+low(X, _Grid) when X < -?FAR -> -?GRID_END;
+low(X, Grid) -> floor(min(X, ?FAR) * Grid).
+
+high(X, _Grid) when X > ?FAR -> ?GRID_END;
+high(X, Grid) -> ceil(max(X, -?FAR) * Grid).
 
 %% The extents of the positions, swept over each substep (CCD: the packed
 %% states hold the displacements).

@@ -123,3 +123,36 @@ fast_diagonal_sphere_test() ->
     Planned = lists:usort([C || {_, Cells, _} <- Plan, C <- Cells]),
     Boxes = lists:usort([C || {P, D, _} <- Swept, C <- rw_hash:cells(rw_shape:swept_aabb(P, D, 0.5), ?CELL)]),
     ?assert(10 * length(Planned) < length(Boxes)).
+
+%% The buckets compare boxes on an integer grid: each holds its exact box
+%% (else a probe would call two touching writes apart), at any magnitude,
+%% and the grid is a power of two near 64 per cell, never below 1.
+on_grid_holds_the_box_test() ->
+    rand:seed(exsss, {7, 8, 9}),
+    lists:foreach(
+      fun(CellSize) ->
+              G = rw_tvht_plan:grid(CellSize),
+              ?assert(G >= 1.0),
+              ?assertEqual(G, math:pow(2, round(math:log2(G)))),
+              ?assert(CellSize * G =< 128 orelse G =:= 1.0),
+              lists:foreach(
+                fun(_) ->
+                        [A, B, C, D, E, F] = [rw_test_lib:awkward_double() || _ <- lists:seq(1, 6)],
+                        Box = {min(A, B), min(C, D), min(E, F), max(A, B), max(C, D), max(E, F)},
+                        {L0, L1, L2, H0, H1, H2} = rw_tvht_plan:on_grid(Box, G),
+                        {X0, Y0, Z0, X1, Y1, Z1} = Box,
+                        [?assert(holds(Lo, Hi, Min, Max, G)) || {Lo, Hi, Min, Max} <- [{L0, H0, X0, X1}, {L1, H1, Y0, Y1},
+                                                                                     {L2, H2, Z0, Z1}]]
+                end, lists:seq(1, 2000))
+      end, [0.001, 0.3, 1.25, 2.5, 64.0, 1.0e6]),
+    %% a box on the grid is as tight as the grid allows
+    ?assertEqual({-1, 0, 64, 1, 0, 65}, rw_tvht_plan:on_grid({-0.01, 0.0, 1.0, 0.01, 0.0, 1.01}, 64.0)),
+    ?assertEqual({0, 0, 0, 0, 0, 0}, rw_tvht_plan:on_grid({-0.0, -0.0, -0.0, -0.0, -0.0, -0.0}, 64.0)).
+
+%% Min..Max within Lo..Hi on a grid of 1/G: compared exactly (the products
+%% of a power of two are exact but for overflow, taken by the grid's ends).
+holds(Lo, Hi, Min, Max, G) ->
+    is_integer(Lo) andalso is_integer(Hi) andalso
+        (Lo =< -16#100000000000000 orelse Min >= 1.0e300 orelse Lo =< Min * G) andalso
+        (Hi >= 16#100000000000000 orelse Max =< -1.0e300 orelse Hi >= Max * G) andalso
+        abs(Lo) =< 16#100000000000000 andalso abs(Hi) =< 16#100000000000000.
