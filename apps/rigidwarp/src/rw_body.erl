@@ -195,9 +195,16 @@ perform([], Phase, D) ->
     {Phase, D};
 perform([{tvht_write, T0, Spheres, Steps, Last}], _Phase, #data{sim = Sim, plans = Cache} = D) ->
     #sim{buckets = Buckets, placement = Place, scene = #scene{model = M, cell_size = Cell, substep = Dt}} = Sim,
-    Planner = fun() -> rw_tvht_plan:write(self(), T0, Spheres, Steps, M, {Cell, Dt}, Place, Cache) end,
     %% hashing the states to cells and buckets is collision-checking work
-    {Write, Plan, Cache1} = profiled(Sim, tvht_reductions, Planner),
+    {Write, Plan, Cache1} = case Sim of
+                                #sim{profile = false} ->
+                                    rw_tvht_plan:write(self(), T0, Spheres, Steps, M, {Cell, Dt}, Place, Cache);
+                                _ ->
+                                    profiled(Sim, tvht_reductions, fun() ->
+                                                                           rw_tvht_plan:write(self(), T0, Spheres, Steps,
+                                                                                              M, {Cell, Dt}, Place, Cache)
+                                                                   end)
+                            end,
     maybe_delay(D),
     {UpTo, Hits, Ids, Where} = rw_tvht:write(Buckets, Write, Plan, Last),
     feed({reply, {written, UpTo, Hits, Ids, Where}}, D#data{plans = Cache1});

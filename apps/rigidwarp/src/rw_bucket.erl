@@ -134,6 +134,11 @@ handle_call(Req, _From, S) ->
     {reply, {error, unexpected}, S}.
 
 -spec handle_cast(term(), #state{}) -> {noreply, #state{}}.
+handle_cast(Msg, #state{profile = undefined} = S) ->
+    case rw_trace:table() of
+        undefined -> {noreply, handle(Msg, S)};
+        _ -> {noreply, instrumented(Msg, fun() -> handle(Msg, S) end, S)}
+    end;
 handle_cast(Msg, S) -> {noreply, instrumented(Msg, fun() -> handle(Msg, S) end, S)}.
 
 handle({commit_unlock, Owner, UpTo, Ids}, #state{probes = Probes, cells = Cells} = S) ->
@@ -145,13 +150,20 @@ handle({gvt, Gvt}, #state{cells = Cells} = S) ->
     S#state{cells = rw_cells:gc(Gvt, Cells)}.
 
 -spec handle_info(term(), #state{}) -> {noreply, #state{}}.
+handle_info({'$rw_call', From, Req} = Msg, #state{profile = undefined} = S) ->
+    case rw_trace:table() of
+        undefined -> {noreply, call(Req, From, S)};
+        _ -> {noreply, instrumented(Msg, fun() -> call(Req, From, S) end, S)}
+    end;
 handle_info({'$rw_call', From, Req} = Msg, S) -> {noreply, instrumented(Msg, fun() -> call(Req, From, S) end, S)};
 handle_info(Msg, S) ->
     logger:warning("rw_bucket ~p: unexpected message ~p", [self(), Msg]),
     {noreply, S}.
 
 %% Handle Msg by Fun: counted when the simulation is profiled, a task when
-%% it is traced.
+%% it is traced. (Otherwise the message is handled without a fun: on this
+%% runtime every fun made is also linked into the process's list of
+%% off-heap terms, which each garbage collection walks.)
 instrumented(Msg, Fun, #state{profile = undefined}) -> rw_trace:task(bucket, Msg, Fun);
 instrumented(Msg, Fun, #state{profile = Stats}) ->
     rw_trace:task(bucket, Msg, fun() -> rw_stats:timed(Stats, tvht_reductions, Fun) end).
@@ -172,15 +184,21 @@ call({lock, Owner, Cells, Op}, From, S) ->
 
 %%% Locks
 
-free(Cells, Owner, Locks) ->
-    lists:all(fun(C) -> case Locks of
-                            #{C := Other} -> Other =:= Owner;
-                            _ -> true
-                        end end, Cells).
+%% (free/3 and lock/3 recurse where lists:all/2 and lists:foldl/3 would
+%% take a fun made at each call: see instrumented/3)
+free([], _Owner, _Locks) -> true;
+free([C | Cells], Owner, Locks) ->
+    case Locks of
+        #{C := Owner} -> free(Cells, Owner, Locks);
+        #{C := _} -> false;
+        _ -> free(Cells, Owner, Locks)
+    end.
 
 take(Cells, Owner, #state{locks = Locks, held = Held} = S) ->
-    S#state{locks = lists:foldl(fun(C, L) -> L#{C => Owner} end, Locks, Cells),
-            held = Held#{Owner => Cells ++ maps:get(Owner, Held, [])}}.
+    S#state{locks = lock(Cells, Owner, Locks), held = Held#{Owner => Cells ++ maps:get(Owner, Held, [])}}.
+
+lock([], _Owner, Locks) -> Locks;
+lock([C | Cells], Owner, Locks) -> lock(Cells, Owner, Locks#{C => Owner}).
 
 %% Drop Owner's locks and grant the waiting requests for those cells that
 %% now fit, in order of arrival (a request waits only while one of its

@@ -111,17 +111,19 @@ sweep_every(Dt) -> 32 * Dt.
 %% each pair is checked once, and not at all when their boxes are apart.
 -spec probe(write(), [span()], cells()) -> {non_neg_integer(), [hit()]} | none.
 probe({Me, _, _, Bounds} = Write, Spans, #cells{cells = Cells} = S) ->
-    Windows = lists:foldl(
-                fun({Cell, Ta, Tb, Ms}, Acc) ->
-                        Key = key(Cell),
-                        case Cells of
-                            %% (maps:to_list is one BIF call; maps:fold steps
-                            %% an iterator in Erlang)
-                            #{Key := ByWriter} -> cell_windows(maps:to_list(ByWriter), Me, Bounds, Ta, Tb, Ms, Acc);
-                            _ -> Acc
-                        end
-                end, #{}, Spans),
-    scan_windows(maps:to_list(Windows), Write, none, S).
+    scan_windows(maps:to_list(span_windows(Spans, Cells, Me, Bounds, #{})), Write, none, S).
+
+span_windows([], _Cells, _Me, _Bounds, Acc) -> Acc;
+span_windows([{Cell, Ta, Tb, Ms} | Rest], Cells, Me, Bounds, Acc) ->
+    Key = key(Cell),
+    case Cells of
+        %% (maps:to_list is one BIF call; maps:fold steps an iterator in
+        %% Erlang)
+        #{Key := ByWriter} ->
+            span_windows(Rest, Cells, Me, Bounds, cell_windows(maps:to_list(ByWriter), Me, Bounds, Ta, Tb, Ms, Acc));
+        _ ->
+            span_windows(Rest, Cells, Me, Bounds, Acc)
+    end.
 
 %% The other writers in a cell (not the prober's own earlier writes).
 cell_windows([], _Me, _Bounds, _Ta, _Tb, _Ms, Acc) -> Acc;
@@ -147,21 +149,25 @@ segs([#seg{x0 = BX0, y0 = BY0, z0 = BZ0, x1 = BX1, y1 = BY1, z1 = BZ1, write = W
 %% Windows keyed by member and other member (pair_key/2: an integer, as
 %% map keys are compared at every lookup), per other write's T0.
 member_windows([], _OMs, _W, Acc) -> Acc;
-member_windows([{I, A, B} | Rest], OMs, {_, OT0, _, _} = W, Acc) ->
-    Acc1 = lists:foldl(fun({O, OA, OB}, Ac) ->
-                               Lo = max(A, OA),
-                               Hi = min(B, OB),
-                               Key = pair_key(I, O),
-                               if
-                                   Lo > Hi -> Ac;
-                                   true ->
-                                       case Ac of
-                                           #{Key := Ws} -> Ac#{Key := window(OT0, W, Lo, Hi, Ws)};
-                                           _ -> Ac#{Key => [{OT0, W, Lo, Hi}]}
-                                       end
-                               end
-                       end, Acc, OMs),
-    member_windows(Rest, OMs, W, Acc1).
+member_windows([{I, A, B} | Rest], OMs, W, Acc) ->
+    member_windows(Rest, OMs, W, pair_windows(OMs, I, A, B, W, Acc)).
+
+%% (times are integers: the guards stand for max/2 and min/2, which are
+%% calls)
+pair_windows([], _I, _A, _B, _W, Acc) -> Acc;
+pair_windows([{O, OA, OB} | Rest], I, A, B, {_, OT0, _, _} = W, Acc) ->
+    Lo = if OA > A -> OA; true -> A end,
+    Hi = if OB < B -> OB; true -> B end,
+    Acc1 = if
+               Lo > Hi -> Acc;
+               true ->
+                   Key = pair_key(I, O),
+                   case Acc of
+                       #{Key := Ws} -> Acc#{Key := window(OT0, W, Lo, Hi, Ws)};
+                       _ -> Acc#{Key => [{OT0, W, Lo, Hi}]}
+                   end
+           end,
+    pair_windows(Rest, I, A, B, W, Acc1).
 
 %% (a scene's bodies by rank: indices far below 2^24)
 -define(PAIR, 16#1000000).
@@ -242,20 +248,8 @@ narrow(#model{ccd = true}, {_, _, #sphere{radius = RA}, #st{p = PA}, DA},
 %% there (in this bucket).
 -spec store(term(), write(), [span()], {non_neg_integer(), [hit()]} | none,
             non_neg_integer(), ids(), cells()) -> cells().
-store(Owner, {_, _, _, {X0, Y0, Z0, X1, Y1, Z1}} = Write, Spans, Result, UpTo, Ids, #cells{cells = Cells} = S) ->
-    Cells1 = lists:foldl(fun({Cell, Ta, Tb, Ms}, Acc) when Ta =< UpTo ->
-                                 Key = key(Cell),
-                                 Seg = #seg{ta = Ta, tb = min(Tb, UpTo), x0 = X0, y0 = Y0, z0 = Z0, x1 = X1, y1 = Y1,
-                                            z1 = Z1, write = Write,
-                                            members = [{I, A, min(B, UpTo)} || {I, A, B} <- Ms, A =< UpTo]},
-                                 case Acc of
-                                     #{Key := #{Owner := Segs} = ByW} -> Acc#{Key := ByW#{Owner := [Seg | Segs]}};
-                                     #{Key := ByW} -> Acc#{Key := ByW#{Owner => [Seg]}};
-                                     _ -> Acc#{Key => #{Owner => [Seg]}}
-                                 end;
-                            (_, Acc) -> Acc
-                         end, Cells, Spans),
-    S1 = S#cells{cells = Cells1},
+store(Owner, Write, Spans, Result, UpTo, Ids, #cells{cells = Cells} = S) ->
+    S1 = S#cells{cells = store_spans(Spans, Owner, Write, UpTo, Cells)},
     case Result of
         {UpTo, Hits} ->
             lists:foldl(fun({Idx, {OIdx, OPid, _, _, _}, _}, Acc) ->
@@ -264,6 +258,21 @@ store(Owner, {_, _, _, {X0, Y0, Z0, X1, Y1, Z1}} = Write, Spans, Result, UpTo, I
         _ ->
             S1
     end.
+
+store_spans([], _Owner, _Write, _UpTo, Cells) -> Cells;
+store_spans([{Cell, Ta, Tb, Ms} | Spans], Owner, {_, _, _, {X0, Y0, Z0, X1, Y1, Z1}} = Write, UpTo, Cells)
+  when Ta =< UpTo ->
+    Key = key(Cell),
+    Seg = #seg{ta = Ta, tb = min(Tb, UpTo), x0 = X0, y0 = Y0, z0 = Z0, x1 = X1, y1 = Y1, z1 = Z1, write = Write,
+               members = [{I, A, min(B, UpTo)} || {I, A, B} <- Ms, A =< UpTo]},
+    Cells1 = case Cells of
+                 #{Key := #{Owner := Segs} = ByW} -> Cells#{Key := ByW#{Owner := [Seg | Segs]}};
+                 #{Key := ByW} -> Cells#{Key := ByW#{Owner => [Seg]}};
+                 _ -> Cells#{Key => #{Owner => [Seg]}}
+             end,
+    store_spans(Spans, Owner, Write, UpTo, Cells1);
+store_spans([_ | Spans], Owner, Write, UpTo, Cells) ->
+    store_spans(Spans, Owner, Write, UpTo, Cells).
 
 record(Cid, T, Idx, Detector, OIdx, Other, #cells{by_body = By, contacts = C} = S) ->
     Add = fun(L) -> [{T, Cid} | L] end,
