@@ -11,7 +11,9 @@
  *                   positions;
  *   island_run/10   rw_island:step/3 substep after substep: a contact
  *                   group, or a body alone touching a fixture;
- *   measure/2       rw_states:seal/3's box and reach of a group's states.
+ *   measure/2       rw_states:seal/3's box and reach of a group's states;
+ *   huge_pages/0    asks Linux to back the VM's super carrier with huge
+ *                   pages (rw_native:huge_pages/0).
  *
  * Where the Erlang code would raise badarith (a result that is not a
  * finite double) or fail on its arguments these return the atom fallback,
@@ -19,10 +21,17 @@
  * it does. rw_native.erl loads this library; without it the callers run
  * the Erlang code alone.
  */
+/* (madvise's MADV_HUGEPAGE beside -std=c99) */
+#define _DEFAULT_SOURCE
 #include <erl_nif.h>
+#include <errno.h>
 #include <math.h>
 #include <stdint.h>
+#include <stdio.h>
 #include <string.h>
+#ifdef __linux__
+#include <sys/mman.h>
+#endif
 
 static ERL_NIF_TERM atom_always, atom_none, atom_some, atom_undefined, atom_fallback, atom_symplectic_euler,
     atom_explicit_euler, atom_verlet, atom_near, atom_fixture, atom_plane, atom_box, atom_hollow, atom_unbounded;
@@ -1314,11 +1323,47 @@ static ERL_NIF_TERM measure(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
     return enif_make_tuple2(env, make_doubles(env, box, 6), overflow ? atom_undefined : enif_make_double(env, reach));
 }
 
+/*
+ * madvise(MADV_HUGEPAGE) on every private anonymous read-write mapping of
+ * at least 1 GiB in this process: the VM's super carrier (+MMscs), from
+ * which all its heaps and tables are carved. Returns the bytes advised
+ * ({error, Errno} if a call fails; 0 where there is no such mapping, or
+ * off Linux).
+ */
+#define HUGE_MAPPING (1UL << 30)
+static ERL_NIF_TERM huge_pages(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[]) {
+    (void)argc;
+    (void)argv;
+    unsigned long advised = 0;
+#if defined(__linux__) && defined(MADV_HUGEPAGE)
+    FILE *maps = fopen("/proc/self/maps", "r");
+    if (maps == NULL)
+        return enif_make_ulong(env, 0);
+    char line[512];
+    while (fgets(line, sizeof line, maps) != NULL) {
+        unsigned long start, end, offset, inode;
+        char perms[8], dev[16], path[256] = "";
+        int fields = sscanf(line, "%lx-%lx %7s %lx %15s %lu %255s", &start, &end, perms, &offset, dev, &inode, path);
+        if (fields < 6 || inode != 0 || path[0] != '\0' || strcmp(perms, "rw-p") != 0 || end - start < HUGE_MAPPING)
+            continue;
+        if (madvise((void *)start, end - start, MADV_HUGEPAGE) != 0) {
+            int error = errno;
+            fclose(maps);
+            return enif_make_tuple2(env, enif_make_atom(env, "error"), enif_make_int(env, error));
+        }
+        advised += end - start;
+    }
+    fclose(maps);
+#endif
+    return enif_make_ulong(env, advised);
+}
+
 static ErlNifFunc funcs[] = {
     {"nif_free_run", 13, free_run, 0},
     {"nif_first_touch", 10, first_touch, 0},
     {"nif_island_run", 10, island_run, 0},
     {"nif_measure", 2, measure, 0},
+    {"nif_huge_pages", 0, huge_pages, 0},
 };
 
 ERL_NIF_INIT(rw_native, funcs, load, NULL, upgrade, NULL)

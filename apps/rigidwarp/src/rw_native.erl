@@ -10,7 +10,8 @@
 %% so, the callers run the Erlang code alone, slower and with the same
 %% results.
 -module(rw_native).
--export([free_run/13, first_touch/10, island_run/10, measure/2, loaded/0, enabled/0, use/1, library/0, library_variable/0]).
+-export([free_run/13, first_touch/10, island_run/10, measure/2, huge_pages/0, loaded/0, enabled/0, use/1, library/0,
+         library_variable/0]).
 -on_load(init/0).
 
 %% (a call's time counted in a traced task: rw_trace)
@@ -26,10 +27,14 @@
 %% The library from the application's priv directory (rw_priv: the
 %% escript's too) or, on a node a run has loaded the engine on (rw_nodes),
 %% from where the run has copied it.
+%% Once loaded, the VM's super carrier is backed by huge pages (huge_pages/0)
+%% unless the application's environment says {huge_pages, false}.
 init() ->
     Library = load_first(candidates()),
     persistent_term:put(?LIBRARY, Library),
-    persistent_term:put(?ENABLED, Library =/= none).
+    persistent_term:put(?ENABLED, Library =/= none),
+    _ = Library =/= none andalso application:get_env(rigidwarp, huge_pages, true) =:= true andalso huge_pages(),
+    ok.
 
 load_first([]) -> none;
 load_first([Dir | Rest]) ->
@@ -81,6 +86,18 @@ enabled() -> persistent_term:get(?ENABLED, false).
 %% alone (false): to compare the two, bit for bit, in one VM.
 -spec use(boolean()) -> ok.
 use(Native) -> persistent_term:put(?ENABLED, Native andalso loaded()).
+
+%% Ask Linux to back the VM's super carrier (+MMscs, as the escript, the
+%% benchmarks and `make shell` start the VM) with transparent huge pages,
+%% where the system leaves that to the program (its setting "madvise").
+%% Tens of thousands of bodies keep gigabytes of heaps, segments and records
+%% in use at once, and with 4 KiB pages nearly every step misses the TLB:
+%% 20,000 spheres ran 11-30 % faster backed by 2 MiB pages (doc/performance.md).
+%% Answers the bytes advised: 0 without a super carrier or off Linux.
+-spec huge_pages() -> non_neg_integer() | {error, integer()}.
+huge_pages() -> nif_huge_pages().
+
+nif_huge_pages() -> erlang:nif_error(not_loaded).
 
 %% A body alone without CCD flying free from T (rw_chain:flight/26): while
 %% T < Last, T is neither Sync nor Busy (none: no such substep) and the

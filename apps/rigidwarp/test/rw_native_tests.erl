@@ -131,3 +131,53 @@ fallback_test() ->
     ?assertMatch({3, _, undefined, <<>>, Acc},
                  rw_native:free_run(3, 3, 1, 0.001, none, none, always, undefined, symplectic_euler,
                                     {0.0, 0.0, 0.0, 0.0, 0.0, 0.0}, undefined, undefined, Acc)).
+
+%% huge_pages/0 advises exactly the VM's super carrier: 1 GiB in a VM
+%% started with +MMscs 1024 (where Linux leaves huge pages to the program,
+%% the mapping is then eligible for them), nothing in one without.
+huge_pages_test_() ->
+    {timeout, 60,
+     fun() ->
+             ?assertEqual(1 bsl 30, in_peer(["+MMscs", "1024", "+MMsco", "false"])),
+             ?assertEqual(0, in_peer([]))
+     end}.
+
+in_peer(Flags) ->
+    {ok, Peer, _} = peer:start_link(#{connection => standard_io, args => Flags ++ ["-pa" | code:get_path()]}),
+    try
+        Advised = peer:call(Peer, rw_native, huge_pages, []),
+        OsPid = peer:call(Peer, os, getpid, []),
+        {ok, Smaps} = file:read_file("/proc/" ++ OsPid ++ "/smaps"),
+        Carriers = [Size || {Size, _} <- carriers(Smaps)],
+        ?assertEqual(lists:sum(Carriers), Advised),
+        case file:read_file("/sys/kernel/mm/transparent_hugepage/enabled") of
+            {ok, <<"always [madvise] never", _/binary>>} ->
+                ?assertEqual([true || _ <- Carriers], [Eligible || {_, Eligible} <- carriers(Smaps)]);
+            _ ->
+                ok
+        end,
+        Advised
+    after
+        peer:stop(Peer)
+    end.
+
+%% The private anonymous read-write mappings of at least 1 GiB in smaps, and
+%% whether each may have huge pages.
+carriers(Smaps) ->
+    Lines = binary:split(Smaps, <<"\n">>, [global]),
+    carriers(Lines, []).
+
+carriers([], Acc) -> lists:reverse(Acc);
+carriers([Line | Rest], Acc) ->
+    Size = case re:run(Line, "^([0-9a-f]+)-([0-9a-f]+) rw-p [0-9a-f]+ [0-9a-f:]+ 0\\s*$", [{capture, all_but_first, list}]) of
+               {match, [A, B]} -> list_to_integer(B, 16) - list_to_integer(A, 16);
+               nomatch -> 0
+           end,
+    case Size >= 1 bsl 30 of
+        true ->
+            Eligible = [E || L <- lists:takewhile(fun(L) -> re:run(L, "^[0-9a-f]+-") =:= nomatch end, Rest),
+                             {match, [E]} <- [re:run(L, "^THPeligible:\\s+([01])", [{capture, all_but_first, binary}])]],
+            carriers(Rest, [{Size, Eligible =:= [<<"1">>]} | Acc]);
+        false ->
+            carriers(Rest, Acc)
+    end.
