@@ -13,13 +13,14 @@
 %% skip substeps at which two bodies are too far apart to touch.
 -module(rw_states).
 -include_lib("rw_physics/include/rw_physics.hrl").
--export([pack/4, packed/4, append/4, seal/3, count/1, position/2, state/2, displacement/2, extents/1, reach/1, first_touch/6]).
+-export([pack/4, packed/4, append/4, seal/3, for_probes/1, count/1, position/2, state/2, displacement/2, extents/1, reach/1,
+         first_touch/6]).
 -export_type([packed/0, extents/0]).
 
 %% The box of the positions: {X0, Y0, Z0, X1, Y1, Z1}.
 -type extents() :: rw_shape:box6().
 -opaque packed() :: {RecordBytes :: pos_integer(), Rotation :: boolean(), Ccd :: boolean(), binary(),
-                     extents(), Reach :: float() | undefined}.
+                     extents() | {Scale :: float()}, Reach :: float() | undefined}.
 
 %% Pack States (in order) with their free displacements (undefined
 %% without CCD). One pass also measures the extents of the positions and
@@ -115,9 +116,19 @@ record(Bin, #st{p = {PX, PY, PZ}, v = {VX, VY, VZ}, q = {{QX, QY, QZ}, QW}, w = 
     <<Bin/binary, PX:64/float, PY:64/float, PZ:64/float, VX:64/float, VY:64/float, VZ:64/float,
       QX:64/float, QY:64/float, QZ:64/float, QW:64/float, WX:64/float, WY:64/float, WZ:64/float>>.
 
-%% The box of the packed positions.
+%% The box of the packed positions (not of states for_probes/1 gave).
 -spec extents(packed()) -> extents().
-extents({_, _, _, _, Extents, _}) -> Extents.
+extents({_, _, _, _, {_, _, _, _, _, _} = Extents, _}) -> Extents.
+
+%% The states as the TVHT's buckets keep them: their probes read the box
+%% of the positions only for its largest coordinate (first_touch/6), so
+%% that is all they get, one float for six (the buckets of tens of
+%% thousands of bodies keep and collect a sixth less).
+-spec for_probes(packed()) -> packed().
+for_probes({Size, Rotation, Ccd, Bin, Extents, Reach}) -> {Size, Rotation, Ccd, Bin, {largest(Extents)}, Reach}.
+
+largest({Scale}) -> Scale;
+largest(Extents) -> scale(Extents).
 
 %% An upper bound on how far the centre moves from one state to the next
 %% (the largest |dx| + |dy| + |dz|, which is at least the distance), for
@@ -174,7 +185,7 @@ first_touch({_, _, _, _, _, ReachA} = StsA, IA, {_, _, _, _, _, ReachB} = StsB, 
   when ReachA =:= undefined; ReachB =:= undefined ->
     scan(IA, IB, Left, StsA, StsB, Sum, 0.0, undefined);
 first_touch(StsA, IA, StsB, IB, Left, Sum) ->
-    Margin = 1.0e-9 * (Sum + max(scale(extents(StsA)), scale(extents(StsB)))),
+    Margin = 1.0e-9 * (Sum + max(largest(element(5, StsA)), largest(element(5, StsB)))),
     Reach = (reach(StsA) + reach(StsB)) * (1.0 + 1.0e-9),
     scan(IA, IB, Left, StsA, StsB, Sum, Margin, Reach).
 

@@ -164,7 +164,7 @@ member_write(Writer, #sphere{idx = Idx, radius = R} = S, T0, Packed, Ccd, Grid) 
                       {X, Y, Z} = rw_states:position(Packed, 1),
                       extend(1, rw_states:count(Packed), Packed, X, Y, Z, X, Y, Z)
               end,
-    {{Idx, Writer, S, T0, Packed, on_grid(bounds(Extents, R), Grid)}, {Packed, Extents, R}}.
+    {{Idx, Writer, S, T0, rw_states:for_probes(Packed), on_grid(bounds(Extents, R), Grid)}, {Packed, Extents, R}}.
 
 %% A write as one bucket of several needs it: with the payloads of only
 %% the members in its cells (each bucket copies and keeps what it gets).
