@@ -1346,7 +1346,10 @@ static ERL_NIF_TERM huge_pages(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv
         int fields = sscanf(line, "%lx-%lx %7s %lx %15s %lu %255s", &start, &end, perms, &offset, dev, &inode, path);
         if (fields < 6 || inode != 0 || path[0] != '\0' || strcmp(perms, "rw-p") != 0 || end - start < HUGE_MAPPING)
             continue;
-        if (madvise((void *)start, end - start, MADV_HUGEPAGE) != 0) {
+        int tries = 0, failed;
+        while ((failed = madvise((void *)start, end - start, MADV_HUGEPAGE) != 0) && errno == EAGAIN && ++tries < 5)
+            ;
+        if (failed) {
             int error = errno;
             fclose(maps);
             return enif_make_tuple2(env, enif_make_atom(env, "error"), enif_make_int(env, error));

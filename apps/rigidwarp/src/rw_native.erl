@@ -10,8 +10,8 @@
 %% so, the callers run the Erlang code alone, slower and with the same
 %% results.
 -module(rw_native).
--export([free_run/13, first_touch/10, island_run/10, measure/2, huge_pages/0, loaded/0, enabled/0, use/1, library/0,
-         library_variable/0]).
+-export([free_run/13, first_touch/10, island_run/10, measure/2, huge_pages/0, huge_pages_for/1, loaded/0, enabled/0,
+         use/1, library/0, library_variable/0]).
 -on_load(init/0).
 
 %% (a call's time counted in a traced task: rw_trace)
@@ -27,14 +27,10 @@
 %% The library from the application's priv directory (rw_priv: the
 %% escript's too) or, on a node a run has loaded the engine on (rw_nodes),
 %% from where the run has copied it.
-%% Once loaded, the VM's super carrier is backed by huge pages (huge_pages/0)
-%% unless the application's environment says {huge_pages, false}.
 init() ->
     Library = load_first(candidates()),
     persistent_term:put(?LIBRARY, Library),
-    persistent_term:put(?ENABLED, Library =/= none),
-    _ = Library =/= none andalso application:get_env(rigidwarp, huge_pages, true) =:= true andalso huge_pages(),
-    ok.
+    persistent_term:put(?ENABLED, Library =/= none).
 
 load_first([]) -> none;
 load_first([Dir | Rest]) ->
@@ -96,6 +92,19 @@ use(Native) -> persistent_term:put(?ENABLED, Native andalso loaded()).
 %% Answers the bytes advised: 0 without a super carrier or off Linux.
 -spec huge_pages() -> non_neg_integer() | {error, integer()}.
 huge_pages() -> nif_huge_pages().
+
+%% As a simulation starts N bodies on this node: huge pages from 5000
+%% bodies on, unless the application's environment says {huge_pages,
+%% false}. A small scene gains little, and its short runs pay for the
+%% kernel's zeroing of whole 2 MiB pages at their first touch (a third of a
+%% slow run of Parallel 500, whose runs took 0.2 or 0.5 s by that alone).
+%% Once advised, the carrier stays so for the VM's life.
+-define(HUGE_PAGES_BODIES, 5000).
+-spec huge_pages_for(non_neg_integer()) -> ok.
+huge_pages_for(N) ->
+    _ = N >= ?HUGE_PAGES_BODIES andalso loaded() andalso application:get_env(rigidwarp, huge_pages, true) =:= true
+        andalso huge_pages(),
+    ok.
 
 nif_huge_pages() -> erlang:nif_error(not_loaded).
 
