@@ -93,8 +93,8 @@ use(Native) -> persistent_term:put(?ENABLED, Native andalso loaded()).
 -spec huge_pages() -> non_neg_integer() | {error, integer()}.
 huge_pages() -> nif_huge_pages().
 
-%% As a simulation starts N bodies on this node: huge pages from 5000
-%% bodies on, unless the application's environment says {huge_pages,
+%% As a simulation of N bodies starts its TVHT on this node: huge pages
+%% from 5000 bodies on, unless the application's environment says {huge_pages,
 %% false}. A small scene gains little, and its short runs pay for the
 %% kernel's zeroing of whole 2 MiB pages at their first touch (a third of a
 %% slow run of Parallel 500, whose runs took 0.2 or 0.5 s by that alone).

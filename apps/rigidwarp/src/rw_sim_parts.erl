@@ -11,7 +11,6 @@
 %% Start a body for each {Sphere, State}: [{Idx, Id, Pid}].
 -spec start_bodies(pid(), #sim{}, [{#sphere{}, #st{}}]) -> [{non_neg_integer(), binary(), pid()}].
 start_bodies(BodySup, Sim, Bodies) ->
-    ok = rw_native:huge_pages_for(length(Bodies)),
     Started = [begin
                    {ok, Pid} = supervisor:start_child(BodySup, [Sim, Sphere, St]),
                    {Idx, Id, Pid}
