@@ -196,15 +196,8 @@ perform([], Phase, D) ->
 perform([{tvht_write, T0, Spheres, Steps, Last}], _Phase, #data{sim = Sim, plans = Cache} = D) ->
     #sim{buckets = Buckets, placement = Place, scene = #scene{model = M, cell_size = Cell, substep = Dt}} = Sim,
     %% hashing the states to cells and buckets is collision-checking work
-    {Write, Plan, Cache1} = case Sim of
-                                #sim{profile = false} ->
-                                    rw_tvht_plan:write(self(), T0, Spheres, Steps, M, {Cell, Dt}, Place, Cache);
-                                _ ->
-                                    profiled(Sim, tvht_reductions, fun() ->
-                                                                           rw_tvht_plan:write(self(), T0, Spheres, Steps,
-                                                                                              M, {Cell, Dt}, Place, Cache)
-                                                                   end)
-                            end,
+    {Write, Plan, Cache1} = profiled(Sim, tvht_reductions, rw_tvht_plan, write,
+                                     [self(), T0, Spheres, Steps, M, {Cell, Dt}, Place, Cache]),
     maybe_delay(D),
     {UpTo, Hits, Ids, Where} = rw_tvht:write(Buckets, Write, Plan, Last),
     feed({reply, {written, UpTo, Hits, Ids, Where}}, D#data{plans = Cache1});
@@ -224,12 +217,9 @@ effect({watch, PIdx, Lvt}, #data{sim = #sim{owners = Owners}} = D) ->
     rw_trace:send(Pid, {watch, self(), Lvt});
 effect({publish_lvt, Idxs, Lvt}, #data{sim = #sim{lvts = Lvts}}) ->
     publish(Idxs, Lvts, Lvt);
-effect({commit, T, Records, Planned}, #data{sim = #sim{profile = false} = Sim}) ->
-    ok = rw_trace:committed(T),
-    rw_commits:commit(Sim, T, Records, Planned);
 effect({commit, T, Records, Planned}, #data{sim = Sim}) ->
     ok = rw_trace:committed(T),
-    profiled(Sim, gvt_reductions, fun() -> rw_commits:commit(Sim, T, Records, Planned) end);
+    profiled(Sim, gvt_reductions, rw_commits, commit, [Sim, T, Records, Planned]);
 effect({keep, Records}, #data{sim = Sim}) ->
     rw_commits:keep(Sim, Records);
 effect({withdraw, Times, Idxs}, #data{sim = Sim}) ->
@@ -253,8 +243,10 @@ publish([I | Rest], Lvts, Lvt) ->
     ok = atomics:put(Lvts, rw_sim:lvt_slot(I), Lvt),
     publish(Rest, Lvts, Lvt).
 
-profiled(#sim{profile = false}, _Stage, Fun) -> Fun();
-profiled(#sim{stats = Stats}, Stage, Fun) -> rw_stats:timed(Stats, Stage, Fun).
+%% Mod:Fun(Args...), counted as Stage when the simulation is profiled (a
+%% fun is made only then: see rw_bucket:instrumented/2).
+profiled(#sim{profile = false}, _Stage, Mod, Fun, Args) -> apply(Mod, Fun, Args);
+profiled(#sim{stats = Stats}, Stage, Mod, Fun, Args) -> rw_stats:timed(Stats, Stage, fun() -> apply(Mod, Fun, Args) end).
 
 %% Test hook: a random pause before TVHT work and sends shuffles the order
 %% in which bodies interleave (liveness and equality must not depend on

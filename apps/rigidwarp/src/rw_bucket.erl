@@ -134,12 +134,7 @@ handle_call(Req, _From, S) ->
     {reply, {error, unexpected}, S}.
 
 -spec handle_cast(term(), #state{}) -> {noreply, #state{}}.
-handle_cast(Msg, #state{profile = undefined} = S) ->
-    case rw_trace:table() of
-        undefined -> {noreply, handle(Msg, S)};
-        _ -> {noreply, instrumented(Msg, fun() -> handle(Msg, S) end, S)}
-    end;
-handle_cast(Msg, S) -> {noreply, instrumented(Msg, fun() -> handle(Msg, S) end, S)}.
+handle_cast(Msg, S) -> {noreply, instrumented(Msg, S)}.
 
 handle({commit_unlock, Owner, UpTo, Ids}, #state{probes = Probes, cells = Cells} = S) ->
     {{Write, Spans, Result}, Probes1} = maps:take(Owner, Probes),
@@ -150,23 +145,25 @@ handle({gvt, Gvt}, #state{cells = Cells} = S) ->
     S#state{cells = rw_cells:gc(Gvt, Cells)}.
 
 -spec handle_info(term(), #state{}) -> {noreply, #state{}}.
-handle_info({'$rw_call', From, Req} = Msg, #state{profile = undefined} = S) ->
-    case rw_trace:table() of
-        undefined -> {noreply, call(Req, From, S)};
-        _ -> {noreply, instrumented(Msg, fun() -> call(Req, From, S) end, S)}
-    end;
-handle_info({'$rw_call', From, Req} = Msg, S) -> {noreply, instrumented(Msg, fun() -> call(Req, From, S) end, S)};
+handle_info({'$rw_call', _, _} = Msg, S) -> {noreply, instrumented(Msg, S)};
 handle_info(Msg, S) ->
     logger:warning("rw_bucket ~p: unexpected message ~p", [self(), Msg]),
     {noreply, S}.
 
-%% Handle Msg by Fun: counted when the simulation is profiled, a task when
-%% it is traced. (Otherwise the message is handled without a fun: on this
+%% Handle Msg (a call or a cast): counted when the simulation is profiled,
+%% a task when it is traced. Otherwise it is handled without a fun: on this
 %% runtime every fun made is also linked into the process's list of
-%% off-heap terms, which each garbage collection walks.)
-instrumented(Msg, Fun, #state{profile = undefined}) -> rw_trace:task(bucket, Msg, Fun);
-instrumented(Msg, Fun, #state{profile = Stats}) ->
-    rw_trace:task(bucket, Msg, fun() -> rw_stats:timed(Stats, tvht_reductions, Fun) end).
+%% off-heap terms, which each garbage collection walks.
+instrumented(Msg, #state{profile = undefined} = S) ->
+    case rw_trace:table() of
+        undefined -> dispatch(Msg, S);
+        _ -> rw_trace:task(bucket, Msg, fun() -> dispatch(Msg, S) end)
+    end;
+instrumented(Msg, #state{profile = Stats} = S) ->
+    rw_trace:task(bucket, Msg, fun() -> rw_stats:timed(Stats, tvht_reductions, fun() -> dispatch(Msg, S) end) end).
+
+dispatch({'$rw_call', From, Req}, S) -> call(Req, From, S);
+dispatch(Msg, S) -> handle(Msg, S).
 
 call({lock, Owner, Cells, Op}, From, S) ->
     case free(Cells, Owner, S#state.locks) of
@@ -185,7 +182,7 @@ call({lock, Owner, Cells, Op}, From, S) ->
 %%% Locks
 
 %% (free/3 and lock/3 recurse where lists:all/2 and lists:foldl/3 would
-%% take a fun made at each call: see instrumented/3)
+%% take a fun made at each call: see instrumented/2)
 free([], _Owner, _Locks) -> true;
 free([C | Cells], Owner, Locks) ->
     case Locks of

@@ -140,7 +140,7 @@ segs([#seg{tb = OTb} | _], _Bounds, Ta, _Tb, _Ms, Acc) when OTb < Ta -> Acc;
 segs([#seg{ta = OTa} | Rest], Bounds, Ta, Tb, Ms, Acc) when OTa > Tb -> segs(Rest, Bounds, Ta, Tb, Ms, Acc);
 segs([#seg{x0 = BX0, y0 = BY0, z0 = BZ0, x1 = BX1, y1 = BY1, z1 = BZ1, write = W, members = OMs} | Rest],
      {AX0, AY0, AZ0, AX1, AY1, AZ1} = Bounds, Ta, Tb, Ms, Acc) ->
-    Acc1 = case AX1 < BX0 orelse BX1 < AX0 orelse AY1 < BY0 orelse BY1 < AY0 orelse AZ1 < BZ0 orelse BZ1 < AZ0 of
+    Acc1 = case disjoint(AX0, AY0, AZ0, AX1, AY1, AZ1, BX0, BY0, BZ0, BX1, BY1, BZ1) of
                true -> Acc;
                false -> member_windows(Ms, OMs, W, Acc)
            end,
@@ -196,6 +196,10 @@ bound(Hi, {BT, _}) -> min(Hi, BT).
 
 %% Two payloads whose boxes do not overlap: they cannot touch.
 apart({_, _, _, _, _, {AX0, AY0, AZ0, AX1, AY1, AZ1}}, {_, _, _, _, _, {BX0, BY0, BZ0, BX1, BY1, BZ1}}) ->
+    disjoint(AX0, AY0, AZ0, AX1, AY1, AZ1, BX0, BY0, BZ0, BX1, BY1, BZ1).
+
+%% Two boxes, by their corners, that do not overlap.
+disjoint(AX0, AY0, AZ0, AX1, AY1, AZ1, BX0, BY0, BZ0, BX1, BY1, BZ1) ->
     AX1 < BX0 orelse BX1 < AX0 orelse AY1 < BY0 orelse BY1 < AY0 orelse AZ1 < BZ0 orelse BZ1 < AZ0.
 
 %% First LVT in [Lo, Hi] at which the two bodies touch. Without CCD the
