@@ -591,10 +591,14 @@ bench_parallelism(_Config) ->
 %% Gases of growing size: a row each, the first the measure of the others,
 %% and memory per body at three points of the run.
 bench_scale(_Config) ->
-    {0, Out, _} = rw_test_lib:run_escript(["bench", "scale", "--counts", "20,60", "--until", "100"]),
+    {0, Out, Err} = rw_test_lib:run_escript(["bench", "scale", "--counts", "20,60", "--until", "100"]),
     #{<<"until_ms">> := 100, <<"counts">> := [#{<<"spheres">> := 20, <<"vs_first">> := 1.0} = First,
                                                #{<<"spheres">> := 60, <<"vs_first">> := Vs} = Second]} =
         last_json_line(Out),
+    %% every count over the same simulated time, small ones several times
+    %% over (rw_cli_scale_tests has how many)
+    [?assertMatch(#{<<"simulated_ms">> := 100, <<"runs">> := 20}, Count) || Count <- [First, Second]],
+    [?assertMatch({match, _}, re:run(Err, "round 1 of 1: " ++ N ++ " spheres, 20 runs of 100 ms")) || N <- ["20", "60"]],
     [begin
          ?assert(Rate > 0 andalso Running > 0 andalso Wall > 0),
          ?assertMatch([_, _, _], Kib)
@@ -617,7 +621,7 @@ bench_scale_rounds(_Config) ->
     ?assertBitwise(1.0, FVs),
     ?assertBitwise((S1 / F1 + S2 / F2) / 2, SVs),
     ?assertBitwise(lists:sort([S1 / F1, S2 / F2]), Range),
-    ?assertMatch({match, _}, re:run(Out, "\\| 60 \\| [0-9]+ \\| [0-9]+ \\| [^|]+ \\| [^|]+ \\| [0-9.]+ \\([0-9.]+-[0-9.]+\\) \\|")),
+    ?assertMatch({match, _}, re:run(Out, "\\| 60 \\| 20 \\| 100 \\| [0-9]+ \\| [^|]+ \\| [^|]+ \\| [0-9.]+ \\([0-9.]+-[0-9.]+\\) \\|")),
     [?assertMatch({match, _}, re:run(Err, Line))
      || Line <- ["round 1 of 2: 20 spheres", "round 1 of 2: 60 spheres", "round 2 of 2: 60 spheres",
                  "round 2 of 2: 20 spheres"]],

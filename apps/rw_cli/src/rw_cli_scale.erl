@@ -1,32 +1,43 @@
 %% `rigidwarp bench scale`: the cost of a body-substep as scenes grow. A
 %% family of gases at Bouncing 500's density (2 spheres of radius 0.25 per
 %% m^3, speeds up to 4 m/s, restitution 1, a closed box), from 500 spheres
-%% up, each run on every scheduler for the same simulated time: body-
+%% up, each run on every scheduler over the same simulated time: body-
 %% substeps per second over the whole run and once every body is running
 %% (from a fifth of the simulated time on: starting thousands of processes
 %% and their first writes is a cost of its own), and the memory per body a
-%% quarter, half and three quarters of the way. Small gases run longer, so
-%% that each run computes at least ?MIN_WORK body-substeps: half a second
-%% of 500 spheres swings by a quarter with the host, and the 500 is what
-%% the others are compared with. With several rounds every count runs once
-%% a round, in the opposite order each round, so that the host's drift
-%% falls on all alike; each count's rates are the medians of its rounds,
-%% and its ratio to the first count the median of the rounds' ratios.
+%% quarter, half and three quarters of the way. Every count is measured
+%% over the same span of its gas's life, for a gas settles as it runs (its
+%% first second runs slower per body-substep than its tenth), so a small
+%% gas runs the same simulated time several times over, until its runs
+%% have computed ?MIN_WORK body-substeps together (at most ?MOST_RUNS
+%% runs): half a second of 500 spheres swings by a quarter with the host,
+%% and the 500 is what the others are compared with. With several rounds
+%% every count runs once a round, in the opposite order each round, so
+%% that the host's drift falls on all alike; each count's rates are the
+%% medians of its rounds, and its ratio to the first count the median of
+%% the rounds' ratios.
 -module(rw_cli_scale).
--export([bench/1, scene/1]).
+-export([bench/1, scene/1, runs/2, combine/1]).
+-export_type([run/0]).
 
 -define(COUNTS, [500, 2000, 5000, 10000, 20000]).
 -define(VALUE_FLAGS, ["--counts", "--until", "--rounds"]).
 -define(DENSITY, 2.0).
 -define(MIN_WORK, 5000000).
+-define(MOST_RUNS, 20).
+
+%% One run: its wall time, the part of it once running and the simulated
+%% ms in that part, its memory per body at three points.
+-type run() :: #{spheres := pos_integer(), simulated_ms := pos_integer(), wall_ms := non_neg_integer(),
+                 running_ms := non_neg_integer(), running_sim_ms := non_neg_integer(), kib_per_body := [float()]}.
 
 -spec bench([string()]) -> 0.
 bench(Args) ->
     #{counts := Counts, until := Until, rounds := Rounds} = parse(Args, #{counts => ?COUNTS, until => 500, rounds => 1}),
-    io:put_chars(["| spheres | simulated (ms) | wall (ms) | body-substeps/s | once running | vs the first | "
-                  "memory per body at 1/4, 1/2, 3/4 (KiB) |\n|---:|---:|---:|---:|---:|---:|---|\n"]),
+    io:put_chars(["| spheres | runs | simulated (ms) | wall (ms) | body-substeps/s | once running | vs the first | "
+                  "memory per body at 1/4, 1/2, 3/4 (KiB) |\n|---:|---:|---:|---:|---:|---:|---:|---|\n"]),
     %% each round's runs by count
-    Runs = [maps:from_list([{N, run(N, simulated(N, Until), Round, Rounds)} || N <- order(Counts, Round)])
+    Runs = [maps:from_list([{N, count(N, Until, Round, Rounds)} || N <- order(Counts, Round)])
             || Round <- lists:seq(1, Rounds)],
     [First | _] = Counts,
     Rows = [row(N, [maps:get(N, R) || R <- Runs], [maps:get(First, R) || R <- Runs]) || N <- Counts],
@@ -50,9 +61,11 @@ parse(["--rounds", V | Rest], O) -> parse(Rest, O#{rounds => rw_cli_args:pos_int
 parse([[$- | _] = Flag | _], _) -> rw_cli_args:bad_flag(Flag, ?VALUE_FLAGS);
 parse([Extra | _], _) -> throw({usage, "unexpected argument " ++ Extra}).
 
-%% How long the gas of N runs: Until ms, or long enough for ?MIN_WORK
-%% body-substeps (1 ms substeps).
-simulated(N, Until) -> max(Until, (?MIN_WORK + N - 1) div N).
+%% How many runs of Until ms the gas of N makes in a round: enough for
+%% ?MIN_WORK body-substeps (1 ms substeps), at least one, at most
+%% ?MOST_RUNS.
+-spec runs(pos_integer(), pos_integer()) -> pos_integer().
+runs(N, Until) -> max(1, min(?MOST_RUNS, (?MIN_WORK + N * Until - 1) div (N * Until))).
 
 %% The gas of N spheres.
 -spec scene(pos_integer()) -> map().
@@ -66,35 +79,52 @@ scene(N) ->
                              <<"seed">> => 2013, <<"min">> => [-H, -H, -H], <<"max">> => [H, H, H],
                              <<"radius">> => 0.25, <<"mass">> => 1.0, <<"speed">> => 4.0}]}.
 
-%% One run of the gas of N spheres to Until: its wall time, its rates
-%% over the whole run and once running, its memory per body; a line on
+%% A round's runs of the gas of N spheres to Until, combined; a line on
 %% stderr says so.
-run(N, Until, Round, Rounds) ->
+count(N, Until, Round, Rounds) ->
+    Runs = runs(N, Until),
+    #{running_per_s := Running} = C = (combine([run(N, Until) || _ <- lists:seq(1, Runs)]))#{spheres => N},
+    io:format(standard_error, "round ~b of ~b: ~b spheres, ~b run~s of ~b ms, ~.3g body-substeps/s once running~n",
+              [Round, Rounds, N, Runs, case Runs of 1 -> ""; _ -> "s" end, Until, Running]),
+    C#{simulated_ms => Until, runs => Runs}.
+
+%% Runs of the gas of N spheres to Until as one: the rates over their
+%% wall times together, the memory of the last.
+-spec combine([run()]) -> #{wall_ms := non_neg_integer(), body_substeps_per_s := float(), running_per_s := float(),
+                             kib_per_body := [float()]}.
+combine(Runs) ->
+    Sum = fun(Key) -> lists:sum([maps:get(Key, R) || R <- Runs]) end,
+    #{spheres := N, simulated_ms := Until} = hd(Runs),
+    Wall = Sum(wall_ms),
+    #{wall_ms => Wall, body_substeps_per_s => N * Until * length(Runs) / max(1, Wall) * 1000,
+      running_per_s => N * Sum(running_sim_ms) / max(1, Sum(running_ms)) * 1000,
+      kib_per_body => maps:get(kib_per_body, lists:last(Runs))}.
+
+%% One run of the gas of N spheres to Until: its wall time (to the run's
+%% own word that it is done), the part of it once running, its memory per
+%% body.
+run(N, Until) ->
     {ok, Scene} = rw_scene:from_map(scene(N), #{overrides => #{duration_ms => Until}}),
     erlang:garbage_collect(),
     Base = erlang:memory(total),
-    {ok, Sim} = rw_timewarp:start(Scene, #{read_frames => false}),
+    {ok, {rw_sim, Run, _} = Sim} = rw_timewarp:start(Scene, #{read_frames => false}),
     T0 = erlang:monotonic_time(millisecond),
-    Samples = sample(Sim, T0, []),
-    Wall = erlang:monotonic_time(millisecond) - T0,
+    {Wall, Samples} = sample(Run, Sim, T0, []),
     ok = rw_timewarp:stop(Sim),
     %% once running: from the first sample past a fifth of the simulated time
     {Ts, Gs} = case [{T, G} || {T, G, _} <- Samples, G >= Until div 5] of
                    [{T1, G1} | _] -> {Wall - T1, Until - G1};
                    [] -> {Wall, Until}
                end,
-    Running = N * Gs / max(1, Ts) * 1000,
     PerBody = fun(M) -> (M - Base) / N / 1024 end,
     At = fun(G0) -> case [M || {_, G, M} <- Samples, G >= G0] of [M1 | _] -> PerBody(M1); [] -> 0.0 end end,
-    io:format(standard_error, "round ~b of ~b: ~b spheres, ~.3g body-substeps/s once running~n",
-              [Round, Rounds, N, Running]),
-    #{wall_ms => Wall, body_substeps_per_s => N * Until / max(1, Wall) * 1000, running_per_s => Running,
-      simulated_ms => Until, kib_per_body => [At(Until div 4), At(Until div 2), At(3 * Until div 4)]}.
+    #{spheres => N, simulated_ms => Until, wall_ms => Wall, running_ms => Ts, running_sim_ms => Gs,
+      kib_per_body => [At(Until div 4), At(Until div 2), At(3 * Until div 4)]}.
 
 %% The row of N spheres from its runs, one a round, and those of the first
 %% count in the same rounds: medians, the median of the rounds' ratios to
 %% the first (and their range), the memory of the last round.
-row(N, [#{simulated_ms := Until} | _] = Runs, FirstRuns) ->
+row(N, [#{simulated_ms := Until, runs := NRuns} | _] = Runs, FirstRuns) ->
     Median = fun(Key) -> rw_machine:median([maps:get(Key, R) || R <- Runs]) end,
     Wall = round(Median(wall_ms)),
     Rate = Median(body_substeps_per_s),
@@ -107,17 +137,19 @@ row(N, [#{simulated_ms := Until} | _] = Runs, FirstRuns) ->
                  [_] -> io_lib:format("~.2f", [Vs]);
                  _ -> io_lib:format("~.2f (~.2f-~.2f)", [Vs, Min, Max])
              end,
-    io:format("| ~b | ~b | ~b | ~.3g | ~.3g | ~s | ~.1f / ~.1f / ~.1f |~n",
-              [N, Until, Wall, Rate, Running, VsText, Quarter, Mid, End]),
-    #{spheres => N, simulated_ms => Until, wall_ms => Wall, body_substeps_per_s => Rate, running_per_s => Running,
+    io:format("| ~b | ~b | ~b | ~b | ~.3g | ~.3g | ~s | ~.1f / ~.1f / ~.1f |~n",
+              [N, NRuns, Until, Wall, Rate, Running, VsText, Quarter, Mid, End]),
+    #{spheres => N, runs => NRuns, simulated_ms => Until, wall_ms => Wall, body_substeps_per_s => Rate, running_per_s => Running,
       vs_first => Vs, vs_first_range => [Min, Max], running_per_s_rounds => [maps:get(running_per_s, R) || R <- Runs],
       kib_per_body => [Quarter, Mid, End]}.
 
-%% {Ms since the start, GVT, memory} every 50 ms until the run is done.
-sample(Sim, T0, Acc) ->
-    case rw_timewarp:stats(Sim) of
-        #{status := running, gvt := G} ->
-            timer:sleep(50),
-            sample(Sim, T0, [{erlang:monotonic_time(millisecond) - T0, max(0, G), erlang:memory(total)} | Acc]);
-        _ -> lists:reverse(Acc)
+%% {Ms since the start, GVT, memory} every 50 ms until the run says it is
+%% done, and the ms it took.
+sample(Run, Sim, T0, Acc) ->
+    receive
+        {rw_done, Run, _} -> {erlang:monotonic_time(millisecond) - T0, lists:reverse(Acc)};
+        {rw_crashed, Run, Who, Reason} -> error({gas_crashed, Who, Reason})
+    after 50 ->
+        #{gvt := G} = rw_timewarp:stats(Sim),
+        sample(Run, Sim, T0, [{erlang:monotonic_time(millisecond) - T0, max(0, G), erlang:memory(total)} | Acc])
     end.
