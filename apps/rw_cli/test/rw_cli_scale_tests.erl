@@ -9,12 +9,9 @@
 %% Enough runs for 5 million body-substeps, rounded up, at least one and
 %% at most 20: every count runs the same simulated time.
 runs_test() ->
-    ?assertEqual(10, rw_cli_scale:runs(500, 1000)),
-    ?assertEqual(2, rw_cli_scale:runs(3000, 1000)),
-    ?assertEqual(1, rw_cli_scale:runs(5000, 1000)),
-    ?assertEqual(1, rw_cli_scale:runs(20000, 1000)),
-    ?assertEqual(20, rw_cli_scale:runs(500, 100)),
-    ?assertEqual(20, rw_cli_scale:runs(20, 100)).
+    [?assertEqual({N, Until, Runs}, {N, Until, rw_cli_scale:runs(N, Until)})
+     || {N, Until, Runs} <- [{500, 1000, 10}, {3000, 1000, 2}, {5000, 1000, 1}, {20000, 1000, 1}, {500, 100, 20},
+                             {20, 100, 20}]].
 
 %% Runs count as one: body-substeps over their wall times together (not
 %% the mean of their rates), once running likewise, the memory of the last.
