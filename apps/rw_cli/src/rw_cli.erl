@@ -97,13 +97,14 @@
   bench scale [--counts N,N,...] [--until MS] [--rounds N]
                              the cost of a body-substep as scenes grow: gases at Bouncing 500's
                              density of 500, 2000, 5000, 10000 and 20000 spheres (default), each
-                             run on every scheduler to MS (default 500; small gases several times,
-                             to at least 5 million body-substeps, at most 20 runs): body-substeps
-                             per second, over the runs and once every body runs, and memory per
-                             body a quarter, half and three quarters of the way. With N rounds (default
-                             1) every count runs once a round, the order reversed each round:
-                             medians, and the median and range of the rounds' ratios to the
-                             first count. A markdown table, then one JSON line
+                             run on every scheduler to MS (default 500; small gases several
+                             times, to at least 5 million body-substeps, at most 20 runs):
+                             body-substeps per second, over the runs and once every body runs,
+                             and memory per body a quarter, half and three quarters of the way.
+                             With N rounds (default 1) every count runs once a round, the order
+                             reversed each round: medians, and the median and range of the
+                             rounds' ratios to the first count. A markdown table, then one JSON
+                             line
 ").
 -define(VERSION_HELP,
 "  version, --version         the rigidwarp version and the Erlang/OTP release it runs on
