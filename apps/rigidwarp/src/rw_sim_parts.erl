@@ -33,12 +33,14 @@ stop(Sup) ->
 
 %% The child spec of a pool of N buckets for the cells of Bodies bodies,
 %% whose work is recorded into Trace (rw_trace) when the simulation is
-%% traced.
+%% traced. As the pool starts, before the buckets' heaps (the largest) are
+%% touched, a large simulation asks for huge pages
+%% (rw_native:huge_pages_for/1).
 -spec bucket_pool(#model{}, pos_integer(), pos_integer(), rw_stats:counters() | undefined, ets:tid() | undefined,
                   non_neg_integer()) -> supervisor:child_spec().
 bucket_pool(M, Dt, N, Profile, Trace, Bodies) ->
     #{id => buckets, type => supervisor, restart => permanent,
-      start => {supervisor, start_link, [?MODULE, {buckets, M, Dt, N, Profile, Trace, bucket_heap(Bodies, N)}]}}.
+      start => {supervisor, start_link, [?MODULE, {buckets, M, Dt, N, Profile, Trace, Bodies}]}}.
 
 %% A bucket keeps the segments of every body writing in its cells since
 %% GVT, and a heap sized to what survived its last collection copies them
@@ -58,11 +60,13 @@ worker(Id, Mod, Args) ->
     #{id => Id, start => {Mod, start_link, Args}, restart => permanent, shutdown => 1000, type => worker}.
 
 -spec init(sim | {buckets, #model{}, pos_integer(), pos_integer(), rw_stats:counters() | undefined,
-                  ets:tid() | undefined} | bodies) ->
+                  ets:tid() | undefined, non_neg_integer()} | bodies) ->
           {ok, {supervisor:sup_flags(), [supervisor:child_spec()]}}.
 init(sim) ->
     {ok, {#{strategy => rest_for_one, intensity => 0, period => 1}, []}};
-init({buckets, M, Dt, N, Profile, Trace, Heap}) ->
+init({buckets, M, Dt, N, Profile, Trace, Bodies}) ->
+    ok = rw_native:huge_pages_for(Bodies),
+    Heap = bucket_heap(Bodies, N),
     {ok, {#{strategy => one_for_all, intensity => 0, period => 1},
           [#{id => {bucket, I}, start => {rw_bucket, start_link, [M, Dt, Profile, Trace, Heap]}, restart => permanent,
              shutdown => 1000} || I <- lists:seq(0, N - 1)]}};

@@ -61,8 +61,6 @@ start_link(Scene, NBuckets, RunTables, Stats, Opts) ->
 one_node(Sup, #scene{model = M, substep = Dt, spheres = Spheres, initial = Initial} = Scene, NBuckets, Tables, Stats,
          Opts) ->
     Profile = case maps:get(profile, Opts, false) of true -> Stats; false -> undefined end,
-    %% (before the buckets' heaps, the largest, are touched)
-    ok = rw_native:huge_pages_for(length(Spheres)),
     {ok, BucketSup} = child(Sup, rw_sim_parts:bucket_pool(M, Dt, NBuckets, Profile, maps:get(trace, Opts, undefined),
                                                               length(Spheres))),
     Buckets = lists:sort([{I, P} || {{bucket, I}, P, _, _} <- supervisor:which_children(BucketSup)]),

@@ -88,8 +88,6 @@ init(Parent, #{model := M, dt := Dt, per := Per, bodies := Bodies, profile := Pr
     Records = ets:new(rw_site_records, [ordered_set, public, {write_concurrency, true}]),
     Tables = (rw_sim_tables:tables(TablesPid))#{records => Records},
     BucketProfile = case Profile of true -> Stats; false -> undefined end,
-    %% (before the buckets' heaps, the largest, are touched)
-    ok = rw_native:huge_pages_for(Bodies),
     {ok, BucketSup} = supervisor:start_child(Sup, rw_sim_parts:bucket_pool(M, Dt, Per, BucketProfile, undefined, Bodies)),
     Buckets = [P || {_, P} <- lists:sort([{I, P} || {{bucket, I}, P, _, _} <- supervisor:which_children(BucketSup)])],
     Parent ! {self(), buckets, Buckets},

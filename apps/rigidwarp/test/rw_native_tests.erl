@@ -139,9 +139,9 @@ fallback_test() ->
 huge_pages_test_() ->
     {timeout, 60,
      fun() ->
-             Advised = in_peer(["+MMscs", "1024", "+MMsco", "false"]),
+             Advised = advised(["+MMscs", "1024", "+MMsco", "false"]),
              ?assert(Advised >= 1 bsl 30 andalso Advised < (1 bsl 30) + (64 bsl 20)),
-             ?assertEqual(0, in_peer([]))
+             ?assertEqual(0, advised([]))
      end}.
 
 %% A simulation asks for them from 5000 bodies on (where the system leaves
@@ -149,43 +149,50 @@ huge_pages_test_() ->
 huge_pages_for_large_simulations_test_() ->
     {timeout, 60,
      fun() ->
-             case file:read_file("/sys/kernel/mm/transparent_hugepage/enabled") of
-                 {ok, <<"always [madvise] never", _/binary>>} ->
+             case madvise_mode() of
+                 true ->
                      ?assertEqual([false], eligible_after(4999)),
                      ?assertEqual([true], eligible_after(5000));
-                 _ ->
+                 false ->
                      ok
              end
      end}.
 
+%% huge_pages/0 in a peer VM started with Flags: the bytes it advised, which
+%% are those of the carriers, each then eligible for huge pages where the
+%% system leaves them to programs.
+advised(Flags) ->
+    {Advised, Carriers} = in_peer(Flags, fun(Peer) -> peer:call(Peer, rw_native, huge_pages, []) end),
+    ?assertEqual(lists:sum([Size || {Size, _} <- Carriers]), Advised),
+    case madvise_mode() of
+        true -> ?assertEqual([true || _ <- Carriers], [Eligible || {_, Eligible} <- Carriers]);
+        false -> ok
+    end,
+    Advised.
+
+%% Whether each carrier may have huge pages once a simulation of Bodies
+%% bodies asked for them.
 eligible_after(Bodies) ->
-    {ok, Peer, _} = peer:start_link(#{connection => standard_io,
-                                      args => ["+MMscs", "1024", "+MMsco", "false", "-pa" | code:get_path()]}),
+    {ok, Carriers} = in_peer(["+MMscs", "1024", "+MMsco", "false"],
+                             fun(Peer) -> peer:call(Peer, rw_native, huge_pages_for, [Bodies]) end),
+    [Eligible || {_, Eligible} <- Carriers].
+
+%% Fun(Peer) in a peer VM started with Flags, and that VM's carriers after it.
+in_peer(Flags, Fun) ->
+    {ok, Peer, _} = peer:start_link(#{connection => standard_io, args => Flags ++ ["-pa" | code:get_path()]}),
     try
-        ok = peer:call(Peer, rw_native, huge_pages_for, [Bodies]),
+        Result = Fun(Peer),
         {ok, Smaps} = file:read_file("/proc/" ++ peer:call(Peer, os, getpid, []) ++ "/smaps"),
-        [Eligible || {_, Eligible} <- carriers(Smaps)]
+        {Result, carriers(Smaps)}
     after
         peer:stop(Peer)
     end.
 
-in_peer(Flags) ->
-    {ok, Peer, _} = peer:start_link(#{connection => standard_io, args => Flags ++ ["-pa" | code:get_path()]}),
-    try
-        Advised = peer:call(Peer, rw_native, huge_pages, []),
-        OsPid = peer:call(Peer, os, getpid, []),
-        {ok, Smaps} = file:read_file("/proc/" ++ OsPid ++ "/smaps"),
-        Carriers = [Size || {Size, _} <- carriers(Smaps)],
-        ?assertEqual(lists:sum(Carriers), Advised),
-        case file:read_file("/sys/kernel/mm/transparent_hugepage/enabled") of
-            {ok, <<"always [madvise] never", _/binary>>} ->
-                ?assertEqual([true || _ <- Carriers], [Eligible || {_, Eligible} <- carriers(Smaps)]);
-            _ ->
-                ok
-        end,
-        Advised
-    after
-        peer:stop(Peer)
+%% Linux leaves transparent huge pages to programs (its setting "madvise").
+madvise_mode() ->
+    case file:read_file("/sys/kernel/mm/transparent_hugepage/enabled") of
+        {ok, <<"always [madvise] never", _/binary>>} -> true;
+        _ -> false
     end.
 
 %% The private anonymous read-write mappings of at least 1 GiB in smaps, and

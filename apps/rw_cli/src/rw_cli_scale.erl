@@ -83,7 +83,7 @@ scene(N) ->
 %% stderr says so.
 count(N, Until, Round, Rounds) ->
     Runs = runs(N, Until),
-    #{running_per_s := Running} = C = (combine([run(N, Until) || _ <- lists:seq(1, Runs)]))#{spheres => N},
+    #{running_per_s := Running} = C = combine([run(N, Until) || _ <- lists:seq(1, Runs)]),
     io:format(standard_error, "round ~b of ~b: ~b spheres, ~b run~s of ~b ms, ~.3g body-substeps/s once running~n",
               [Round, Rounds, N, Runs, case Runs of 1 -> ""; _ -> "s" end, Until, Running]),
     C#{simulated_ms => Until, runs => Runs}.
