@@ -72,7 +72,8 @@
     sites = [] :: [pid()],
     start = 0 :: non_neg_integer(),           % where this run began, in ticks (its committed work counts from there)
     started :: integer(),                     % monotonic ms
-    ended = none :: none | integer()
+    ended = none :: none | integer(),
+    lead = none :: rw_sim:lead()              % the highest LVT, as last read
 }).
 
 %% Start a run of Scene under rw_sims_sup, on the nodes it asks for: the
@@ -236,7 +237,8 @@ handle_call(scene, _From, R) ->
 handle_call(ring, _From, R) ->
     {reply, R#r.ring, R};
 handle_call(stats, _From, R) ->
-    {reply, stats_of(R), R}.
+    {Stats, R1} = stats_of(R),
+    {reply, Stats, R1}.
 
 -spec handle_cast(term(), #r{}) -> {noreply, #r{}}.
 handle_cast(_Msg, R) -> {noreply, R}.
@@ -415,15 +417,14 @@ stats_of(#r{scene = #scene{spheres = Spheres, substep = Dt, duration = End}, sta
     Committed = N * (max(G, Start) - Start) div Dt,
     Computed = maps:get(computed_substeps, Raw),
     Wall = max(1, case R#r.ended of none -> erlang:monotonic_time(millisecond); E -> E end - T0),
-    Lead = case {R#r.sup, Sim} of
-               {none, _} -> G;
-               {_, #sim{lvts = Lvts, placement = Place}} when is_integer(Place) ->
-                   #{size := Size} = atomics:info(Lvts),
-                   lists:max([atomics:get(Lvts, I) || I <- lists:seq(1, Size, 8)]);
-               {_, #sim{}} ->
-                   %% over several nodes, each site knows its own bodies'
-                   SiteLead
-           end,
+    {Lead, LeadRead} = case {R#r.sup, Sim} of
+                           {none, _} -> {G, R#r.lead};
+                           {_, #sim{lvts = Lvts, placement = Place}} when is_integer(Place) ->
+                               rw_sim:lead(Lvts, all, erlang:monotonic_time(millisecond), R#r.lead);
+                           {_, #sim{}} ->
+                               %% over several nodes, each site knows its own bodies'
+                               {SiteLead, R#r.lead}
+                       end,
     GvtMs = ms(G, R),
     SimS = max(1, GvtMs - ms(Start, R)) / 1000,
     {Messages, Raw1} = take(dist_messages, Raw),
@@ -434,7 +435,7 @@ stats_of(#r{scene = #scene{spheres = Spheres, substep = Dt, duration = End}, sta
                    _ -> #{cross_node_messages => Messages, cross_node_bytes => Bytes, migrations => R#r.migrations,
                           cross_node_messages_per_s => Messages / SimS, cross_node_bytes_per_s => Bytes / SimS}
                end,
-    (maps:merge(Raw2, Crossing))#{
+    {(maps:merge(Raw2, Crossing))#{
          nodes => Nodes,
          rollbacks => maps:get(primary_rollbacks, Raw) + maps:get(secondary_rollbacks, Raw),
          committed_substeps => Committed,
@@ -442,4 +443,4 @@ stats_of(#r{scene = #scene{spheres = Spheres, substep = Dt, duration = End}, sta
          gvt => GvtMs, start_ms => ms(Start, R), end_ms => ms(End, R), max_lvt => ms(max(Lead, G), R), wall_ms => Wall,
          realtime_factor => max(0, GvtMs - ms(Start, R)) / Wall,
          status => case R#r.status of {crashed, _, _} -> crashed; Status -> Status end,
-         restarts => R#r.restarted}.
+         restarts => R#r.restarted}, R#r{lead = LeadRead}}.

@@ -4,8 +4,8 @@
 %% argument.
 -module(rw_sim).
 -include("rigidwarp.hrl").
--export([new/5, portable/1, for_site/4, for_bodies/1, lvt_slot/1]).
--export_type([options/0, tables/0]).
+-export([new/5, portable/1, for_site/4, for_bodies/1, lvt_slot/1, lead/4]).
+-export_type([options/0, tables/0, lead/0]).
 
 %% The simulation's working tables (rw_sim_tables) and the run's records
 %% and ring (rw_run).
@@ -110,6 +110,30 @@ for_bodies(#sim{scene = Scene} = Sim) -> Sim#sim{scene = Scene#scene{spheres = [
 %% per body, so that bodies on different cores do not share lines.
 -spec lvt_slot(non_neg_integer()) -> pos_integer().
 lvt_slot(Idx) -> Idx * 8 + 1.
+
+%% The highest LVT published by the bodies Idxs (all: every slot), as read
+%% at monotonic ms At: {At, Lead}, or none before the first read.
+-type lead() :: none | {integer(), non_neg_integer()}.
+
+%% How old a read of the highest LVT may be: a read goes over every body's
+%% slot (some 1.5 ms at 20,000 bodies), while the stats that show it are
+%% read many times a second (a progress line, a bench's samples).
+-define(LEAD_EVERY_MS, 1000).
+
+%% The highest LVT of the bodies Idxs at Now (monotonic ms), read anew
+%% only when the last read is ?LEAD_EVERY_MS old.
+-spec lead(atomics:atomics_ref(), all | [non_neg_integer()], integer(), lead()) -> {non_neg_integer(), lead()}.
+lead(_Lvts, _Idxs, Now, {At, Lead} = Last) when Now - At < ?LEAD_EVERY_MS ->
+    {Lead, Last};
+lead(Lvts, all, Now, _Last) ->
+    #{size := Size} = atomics:info(Lvts),
+    fresh(Now, [atomics:get(Lvts, I) || I <- lists:seq(1, Size, 8)]);
+lead(Lvts, Idxs, Now, _Last) ->
+    fresh(Now, [atomics:get(Lvts, lvt_slot(I)) || I <- Idxs]).
+
+fresh(Now, Lvts) ->
+    Lead = lists:max([0 | Lvts]),
+    {Lead, {Now, Lead}}.
 
 gvt_now() ->
     Ref = atomics:new(2, [{signed, true}]),

@@ -76,7 +76,8 @@ call(Site, Req) ->
     stats :: rw_stats:counters(),
     profile :: boolean(),
     sent :: {non_neg_integer(), non_neg_integer()},
-    lvts = none :: none | {atomics:atomics_ref(), [non_neg_integer()]}   % its bodies' LVTs, once they exist
+    lvts = none :: none | {atomics:atomics_ref(), [non_neg_integer()]},  % its bodies' LVTs, once they exist
+    lead = none :: rw_sim:lead()                                         % their highest, as last read
 }).
 
 -spec init(pid(), options()) -> no_return().
@@ -118,11 +119,11 @@ handle({bodies, Sim0, Bodies, RunGvt}, #site{sup = Sup, tables = Tables, buckets
     {{Gvt, Started}, S#site{lvts = {Sim#sim.lvts, [Idx || {#sphere{idx = Idx}, _} <- Bodies]}}};
 handle(stats, #site{stats = Stats, profile = Profile, sent = {N0, B0}} = S) ->
     {N, B} = dist_sent(),
-    Lead = case S#site.lvts of
-               none -> 0;
-               {Lvts, Idxs} -> lists:max([0 | [atomics:get(Lvts, rw_sim:lvt_slot(I)) || I <- Idxs]])
-           end,
-    {{(rw_stats:read(Stats, Profile))#{dist_messages => N - N0, dist_bytes => B - B0}, Lead}, S}.
+    {Lead, LeadRead} = case S#site.lvts of
+                           none -> {0, S#site.lead};
+                           {Lvts, Idxs} -> rw_sim:lead(Lvts, Idxs, erlang:monotonic_time(millisecond), S#site.lead)
+                       end,
+    {{(rw_stats:read(Stats, Profile))#{dist_messages => N - N0, dist_bytes => B - B0}, Lead}, S#site{lead = LeadRead}}.
 
 %% What this node has sent over its distribution connections: messages
 %% (packets) and bytes.
