@@ -213,7 +213,8 @@ teardown(#r{sup = Sup, watched = W} = R0) ->
     R = R0#r{remote = add_counts(R0#r.remote, site_counts(R0)), sites = []},
     ok = rw_sim_parts:stop(Sup),
     receive {'EXIT', Sup, _} -> ok after 0 -> ok end,
-    R#r{sup = none, watched = #{}}.
+    %% (the next tree's bodies publish their LVTs anew: read them afresh)
+    R#r{sup = none, watched = #{}, lead = none}.
 
 -spec handle_call(term(), gen_server:from(), #r{}) -> {reply, term(), #r{}}.
 handle_call({subscribe, {_, frames, _}}, _From, #r{opts = #{read_frames := false}} = R) ->
