@@ -117,7 +117,7 @@ lvt_slot(Idx) -> Idx * 8 + 1.
 
 %% The highest LVT of the bodies Idxs at Now (monotonic ms), read anew only
 %% when the last read is a millisecond old per 20 bodies (a second at
-%% 20,000): a read goes over every body's slot, some 75 ns a body, while
+%% 20,000): a read goes over every body's slot, some 60-120 ns a body, while
 %% the stats that show it are read many times a second (a progress line at
 %% every frame, a bench's samples), so the reads take at most a few
 %% thousandths of a core.
