@@ -8,7 +8,7 @@
 %% incarnation (the scene's start or a checkpoint): along the axis over
 %% which the bodies spread the most, at the cell boundaries nearest to
 %% equal shares of the bodies. Within a site a cell's bucket is its
-%% block's (rw_hash: 8x8x8 cells share one). Which bucket holds a cell
+%% block's (rw_hash:bucket/2). Which bucket holds a cell
 %% never changes a result, only which process computes a contact.
 -module(rw_place).
 -export([new/4, site_of/2, bucket/2, buckets/1, sites/1, split/2]).
@@ -35,9 +35,9 @@ site_of(P, #place{axis = Axis, cuts = Cuts, cell = Cell}) -> site(cell(element(A
 
 %% The bucket of a cell: its block's in the pool of the site it lies in.
 -spec bucket(rw_hash:cell(), placement()) -> non_neg_integer().
-bucket({X, Y, Z} = Cell, #place{axis = Axis, cuts = Cuts, per = Per}) ->
+bucket(Cell, #place{axis = Axis, cuts = Cuts, per = Per}) ->
     Site = site(element(Axis, Cell), Cuts),
-    Site * Per + erlang:phash2({X bsr 3, Y bsr 3, Z bsr 3}, Per).
+    Site * Per + rw_hash:bucket(Cell, Per).
 
 %% How many buckets in all.
 -spec buckets(placement()) -> pos_integer().
