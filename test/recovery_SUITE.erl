@@ -21,7 +21,7 @@ all() -> [random_kills_change_no_frame, two_kills_at_once, past_the_budget_crash
 
 %% Contact-heavy scenes, each over a part where contacts go on all along,
 %% and long enough (0.1-0.2 s of wall time on two cores) for the kills,
-%% 0-150 ms apart, to land while it runs.
+%% 0-60 ms apart, to land while it runs.
 -define(SCENES, [{"bouncing_50_250", scenario, 4000}, {"pile_40", test, 1200}, {"rain_on_logs", test, 800},
                  {"cylinders_200", scenario, 700}]).
 
@@ -39,7 +39,7 @@ drain(Tag) -> receive {Tag, F} -> [F | drain(Tag)] after 0 -> [] end.
 
 %%% Properties
 
-kill() -> {range(0, 150), oneof([body, body, bucket, gvt, tables, watchdog]), pos_integer()}.
+kill() -> {range(0, 60), oneof([body, body, bucket, gvt, tables, watchdog]), pos_integer()}.
 
 random_kills_change_no_frame(Config) ->
     Scenes = ?config(scenes, Config),
@@ -70,7 +70,7 @@ random_kills_change_no_frame(Config) ->
     [{_, Runs}] = ets:lookup(Tally, runs),
     io:format(user, "fault injection: ~b kills survived in ~b runs (~b restarts)~n", [Kills, Runs, Restarts]),
     %% 2-4 kills are planned per run, at random times: some land after a
-    %% short run has ended (seen: 57 to 100 landed in 30 runs)
+    %% short run has ended (seen: 106 to 112 landed in 30 runs)
     ?assert(2 * Kills >= 3 * Runs),
     {comment, io_lib:format("~b kills survived in ~b runs (~b restarts)", [Kills, Runs, Restarts])}.
 
