@@ -94,7 +94,7 @@
                              1 -> 2 scheduler speedup measured here (N alternating pairs, default
                              3, median). A markdown table, then one JSON line. Default scenes: the
                              paper's eight and pile_300, heap_500, stack_1000; --until default 1000
-  bench scale [--counts N,N,...] [--until MS] [--rounds N]
+  bench scale [--counts N,N,...] [--until MS] [--rounds N] [--scenes DIR]
                              the cost of a body-substep as scenes grow: gases at Bouncing 500's
                              density of 500, 2000, 5000, 10000 and 20000 spheres (default), each
                              run on every scheduler to MS (default 500; small gases several
@@ -104,7 +104,8 @@
                              With N rounds (default 1) every count runs once a round, the order
                              reversed each round: medians, and the median and range of the
                              rounds' ratios to the first count. A markdown table, then one JSON
-                             line
+                             line. With --scenes, runs nothing: writes the gases as scene files
+                             DIR/gas_N.json that run to MS, and prints their paths
 ").
 -define(VERSION_HELP,
 "  version, --version         the rigidwarp version and the Erlang/OTP release it runs on

@@ -21,7 +21,7 @@
 -export_type([run/0]).
 
 -define(COUNTS, [500, 2000, 5000, 10000, 20000]).
--define(VALUE_FLAGS, ["--counts", "--until", "--rounds"]).
+-define(VALUE_FLAGS, ["--counts", "--until", "--rounds", "--scenes"]).
 -define(DENSITY, 2.0).
 -define(MIN_WORK, 5000000).
 -define(MOST_RUNS, 20).
@@ -33,7 +33,12 @@
 
 -spec bench([string()]) -> 0.
 bench(Args) ->
-    #{counts := Counts, until := Until, rounds := Rounds} = parse(Args, #{counts => ?COUNTS, until => 500, rounds => 1}),
+    case parse(Args, #{counts => ?COUNTS, until => 500, rounds => 1}) of
+        #{scenes := Dir, counts := Counts, until := Until} -> write_scenes(Dir, Counts, Until);
+        Opts -> measure(Opts)
+    end.
+
+measure(#{counts := Counts, until := Until, rounds := Rounds}) ->
     io:put_chars(["| spheres | runs | simulated (ms) | wall (ms) | body-substeps/s | once running | vs the first | "
                   "memory per body at 1/4, 1/2, 3/4 (KiB) |\n|---:|---:|---:|---:|---:|---:|---:|---|\n"]),
     %% each round's runs by count
@@ -58,8 +63,22 @@ parse(["--counts", V | Rest], O) ->
     end;
 parse(["--until", V | Rest], O) -> parse(Rest, O#{until => rw_cli_args:pos_ms("--until", V)});
 parse(["--rounds", V | Rest], O) -> parse(Rest, O#{rounds => rw_cli_args:pos_int("--rounds", V)});
+parse(["--scenes", Dir | Rest], O) -> parse(Rest, O#{scenes => Dir});
 parse([[$- | _] = Flag | _], _) -> rw_cli_args:bad_flag(Flag, ?VALUE_FLAGS);
 parse([Extra | _], _) -> throw({usage, "unexpected argument " ++ Extra}).
+
+%% The gases as scene files DIR/gas_N.json that run to Until, for a
+%% comparison of two builds on them (scripts/ab runs each round's builds in
+%% random order: the host drifts too much for runs in a fixed order); none
+%% is run. Their paths, a line each.
+write_scenes(Dir, Counts, Until) ->
+    Files = [{filename:join(Dir, ["gas_", integer_to_list(N), ".json"]), N} || N <- Counts],
+    _ = [case filelib:ensure_dir(File) =:= ok andalso
+                  file:write_file(File, [jiffy:encode((scene(N))#{<<"duration_ms">> => Until}, [pretty]), $\n]) of
+             ok -> io:format("~ts~n", [File]);
+             _ -> throw({bad_input, "--scenes: cannot write " ++ File})
+         end || {File, N} <- Files],
+    0.
 
 %% How many runs of Until ms the gas of N makes in a round: enough for
 %% ?MIN_WORK body-substeps (1 ms substeps), at least one, at most

@@ -26,3 +26,26 @@ combine_test() ->
     ?assertBitwise(10 * 100 * 2 / 400 * 1000, Rate),
     ?assertBitwise(10 * 160 / 320 * 1000, Running),
     ?assertBitwise([4.0, 5.0, 6.0], Kib).
+
+%% --scenes writes the gases the bench runs as scene files that run to
+%% --until (for scripts/ab), prints their paths and runs none; a directory
+%% it cannot write is bad input.
+scenes_test() ->
+    Dir = string:trim(os:cmd("mktemp -d")),
+    try
+        Out = filename:join(Dir, "gases"),
+        ?assertEqual(0, rw_cli_scale:bench(["--counts", "20,60", "--until", "300", "--scenes", Out])),
+        [begin
+             File = filename:join(Out, "gas_" ++ integer_to_list(N) ++ ".json"),
+             {ok, Loaded} = rigidwarp:load(File, #{}),
+             {ok, Expected} = rw_scene:from_map(rw_cli_scale:scene(N), #{file => File,
+                                                                        overrides => #{duration_ms => 300}}),
+             ?assertEqual(Expected, Loaded)
+         end || N <- [20, 60]],
+        NotADir = filename:join(Dir, "file"),
+        ok = file:write_file(NotADir, <<>>),
+        ?assertThrow({bad_input, "--scenes: cannot write " ++ _},
+                     rw_cli_scale:bench(["--counts", "20", "--scenes", filename:join(NotADir, "gases")]))
+    after
+        os:cmd("rm -rf '" ++ Dir ++ "'")
+    end.
