@@ -105,7 +105,7 @@ accuracy(#{out := Csv, plot := Png, quiet := Quiet} = Opts) ->
             throw({bad_input, Msg});
         {ok, Rows} ->
             io:put_chars(rw_accuracy:table(Rows)),
-            ok = write_atomically(Csv, rw_accuracy:csv(Rows)),
+            ok = rw_cli_report:write_atomically(Csv, rw_accuracy:csv(Rows)),
             case plot(Gnuplot, Rows, Png) of
                 ok ->
                     io:format(standard_error, "rigidwarp: wrote ~ts and ~ts~n", [Csv, Png]),
@@ -123,13 +123,6 @@ progress_line(N, #{scene := S, substep_ms := Dt, stride_ms := St, integrator := 
                   " ~b missed~n", [N, S, rw_cli_args:format_ms(Dt), rw_cli_args:format_ms(St), I,
                                    case C of true -> "on"; false -> "off" end,
                                    rw_accuracy:num(Rt), rw_accuracy:num(E), M]).
-
-write_atomically(File, Data) ->
-    Tmp = File ++ ".part",
-    case filelib:ensure_dir(File) =:= ok andalso file:write_file(Tmp, Data) of
-        ok -> file:rename(Tmp, File);
-        _ -> throw({bad_input, "cannot write " ++ File})
-    end.
 
 %%% The Pareto plot: one panel per scene, wall time per simulated second
 %%% against the largest position error, both on log scales; integrators in

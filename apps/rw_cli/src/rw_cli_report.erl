@@ -1,9 +1,10 @@
 %% What the escript reports while and after a scene runs, for `run` and
 %% `view --live` alike: the progress line on stderr, the summary as one
-%% JSON object with its keys in a fixed order, and messages kept to one line.
+%% JSON object with its keys in a fixed order, and messages kept to one line;
+%% and the files the benchmarks write, each whole or not at all.
 -module(rw_cli_report).
 -include_lib("rigidwarp/include/rigidwarp.hrl").
--export([progress/2, is_terminal/0, summary_json/1, key_order/1, live_summary/2, one_line/1]).
+-export([progress/2, is_terminal/0, summary_json/1, key_order/1, live_summary/2, one_line/1, write_atomically/2]).
 
 %% The summary's keys in the order they are printed: these first (those
 %% the run has), then any others sorted. The run help text lists the same
@@ -109,4 +110,14 @@ text(Msg) ->
     case unicode:characters_to_list(Msg) of
         L when is_list(L) -> L;
         _ -> lists:flatten(io_lib:format("~0p", [Msg]))
+    end.
+
+%% Write File whole or not at all (through File.part); a file that cannot
+%% be written is bad input.
+-spec write_atomically(string(), iodata()) -> ok.
+write_atomically(File, Data) ->
+    Tmp = File ++ ".part",
+    case filelib:ensure_dir(File) =:= ok andalso file:write_file(Tmp, Data) of
+        ok -> file:rename(Tmp, File);
+        _ -> throw({bad_input, "cannot write " ++ File})
     end.

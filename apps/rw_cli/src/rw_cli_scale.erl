@@ -73,10 +73,12 @@ parse([Extra | _], _) -> throw({usage, "unexpected argument " ++ Extra}).
 %% is run. Their paths, a line each.
 write_scenes(Dir, Counts, Until) ->
     Files = [{filename:join(Dir, ["gas_", integer_to_list(N), ".json"]), N} || N <- Counts],
-    _ = [case filelib:ensure_dir(File) =:= ok andalso
-                  file:write_file(File, [jiffy:encode((scene(N))#{<<"duration_ms">> => Until}, [pretty]), $\n]) of
-             ok -> io:format("~ts~n", [File]);
-             _ -> throw({bad_input, "--scenes: cannot write " ++ File})
+    _ = [begin
+             Json = [jiffy:encode((scene(N))#{<<"duration_ms">> => Until}, [pretty]), $\n],
+             try ok = rw_cli_report:write_atomically(File, Json)
+             catch throw:{bad_input, Msg} -> throw({bad_input, "--scenes: " ++ Msg})
+             end,
+             io:format("~ts~n", [File])
          end || {File, N} <- Files],
     0.
 
