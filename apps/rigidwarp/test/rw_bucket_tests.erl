@@ -42,3 +42,34 @@ told() ->
     receive {'$gen_cast', {gvt, G}} -> [G | told()]
     after 0 -> []
     end.
+
+%% A bucket runs at high priority, and so does its caller while it waits
+%% for the answer: the request is served, and the caller resumes, before
+%% the runnable bodies of normal priority. After the call the caller has
+%% its own priority again, whatever it was.
+callers_wait_at_high_priority_test() ->
+    {ok, Bucket} = rw_bucket:start_link(#model{}, 1, undefined, undefined, 233),
+    ?assertEqual({priority, high}, process_info(Bucket, priority)),
+    unlink(Bucket),
+    exit(Bucket, shutdown),
+    Write = {self(), 0, #{}, {0, 0, 0, 0, 0, 0}},
+    %% a stand-in bucket answers with the caller's priority as it asks
+    Answering = fun Loop() ->
+                        receive
+                            {'$rw_call', {Caller, Ref}, _} ->
+                                {priority, P} = process_info(Caller, priority),
+                                Caller ! {Ref, P},
+                                Loop();
+                            stop -> ok
+                        end
+                end,
+    Fake = spawn_link(Answering),
+    ?assertEqual(high, rw_bucket:lock_probe(Fake, [], Write, [])),
+    ?assertEqual({priority, normal}, process_info(self(), priority)),
+    ?assertEqual(high, rw_bucket:lock_delete(Fake, self(), [], [], 0)),
+    ?assertEqual({priority, normal}, process_info(self(), priority)),
+    Low = process_flag(priority, low),
+    ?assertEqual(high, rw_bucket:probe_commit(Fake, [], Write, [], 0)),
+    ?assertEqual({priority, low}, process_info(self(), priority)),
+    process_flag(priority, Low),
+    Fake ! stop.
