@@ -253,12 +253,14 @@ api_after_crash_and_stop(Config) ->
 
 %% A run's schedulers are lent by the VM for the run: two overlapping runs
 %% with different counts cannot both have them (the second is refused),
-%% and the count from before comes back when the run ends.
+%% and the count from before comes back when the run ends. (A runs ten
+%% simulated minutes, some seconds of wall time, so that it is still
+%% running when B has ended; it is stopped long before its end.)
 schedulers_are_lent_not_taken(Config) ->
     {Scene, _} = maps:get("bouncing_50_250", ?config(scenes, Config)),
     File = Scene#scene.file,
     Online = erlang:system_info(schedulers_online),
-    {ok, A} = rigidwarp:start(File, #{until => 3000, schedulers => 1}),
+    {ok, A} = rigidwarp:start(File, #{until => 600000, schedulers => 1}),
     ?assertEqual(1, erlang:system_info(schedulers_online)),
     case erlang:system_info(schedulers) of
         1 -> ok;
