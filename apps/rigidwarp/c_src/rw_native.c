@@ -13,7 +13,9 @@
  *                   group, or a body alone touching a fixture;
  *   measure/2       rw_states:seal/3's box and reach of a group's states;
  *   huge_pages/0    asks Linux to back the VM's super carrier with huge
- *                   pages (rw_native:huge_pages/0).
+ *                   pages (rw_native:huge_pages/0);
+ *   cells_*         a TVHT bucket's segments outside the Erlang heap
+ *                   (rw_cells.c).
  *
  * Where the Erlang code would raise badarith (a result that is not a
  * finite double) or fail on its arguments these return the atom fallback,
@@ -32,6 +34,7 @@
 #ifdef __linux__
 #include <sys/mman.h>
 #endif
+#include "rw_cells.h"
 
 static ERL_NIF_TERM atom_always, atom_none, atom_some, atom_undefined, atom_fallback, atom_symplectic_euler,
     atom_explicit_euler, atom_verlet, atom_near, atom_fixture, atom_plane, atom_box, atom_hollow, atom_unbounded;
@@ -53,7 +56,7 @@ static int load(ErlNifEnv *env, void **priv, ERL_NIF_TERM info) {
     atom_box = enif_make_atom(env, "box");
     atom_hollow = enif_make_atom(env, "hollow");
     atom_unbounded = enif_make_atom(env, "unbounded");
-    return 0;
+    return rw_cells_load(env);
 }
 
 static int upgrade(ErlNifEnv *env, void **priv, void **old_priv, ERL_NIF_TERM info) {
@@ -413,6 +416,59 @@ static ERL_NIF_TERM free_run(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[]
  * -> K | none | fallback, as rw_states:touch/10 with Reach a float or
  * undefined.
  */
+/* The scan of first_touch/10 (and of the TVHT's C cells, rw_cells.c):
+   1 and the offset in *k, 0 for none, -1 for fallback. */
+int rw_first_touch(const ErlNifBinary *a, ErlNifSInt64 sa, ErlNifSInt64 ia, const ErlNifBinary *b, ErlNifSInt64 sb,
+                   ErlNifSInt64 ib, ErlNifSInt64 left, double sum, double margin, int has_reach, double reach,
+                   ErlNifSInt64 *k_out) {
+    ErlNifSInt64 k = 0;
+    if (sa < 24 || sb < 24 || left < 0 || left > MAX_SCAN) return -1;
+    int bad = 0;
+    double sum2 = sum * sum;
+    CHECK(sum2);
+    if (bad) return -1;
+    for (;;) {
+        if (ia < 1 || ib < 1 || (uint64_t)ia * (uint64_t)sa > a->size || (uint64_t)ib * (uint64_t)sb > b->size)
+            return -1;
+        const unsigned char *pa = a->data + (ia - 1) * sa, *pb = b->data + (ib - 1) * sb;
+        double dx = get_double(pb) - get_double(pa), dy = get_double(pb + 8) - get_double(pa + 8),
+               dz = get_double(pb + 16) - get_double(pa + 16);
+        double d2 = dx * dx + dy * dy + dz * dz;
+        CHECK(dx); CHECK(dy); CHECK(dz); CHECK(dx * dx); CHECK(dy * dy); CHECK(dz * dz); CHECK(dx * dx + dy * dy);
+        CHECK(d2);
+        if (bad) return -1;
+        if (d2 < sum2) {
+            *k_out = k;
+            return 1;
+        }
+        if (left == 0) return 0;
+        double gap = sqrt(d2) - sum - margin;
+        CHECK(sqrt(d2) - sum); CHECK(gap);
+        if (bad) return -1;
+        ErlNifSInt64 skip;
+        if (!has_reach || gap <= reach) {
+            skip = 0;
+        } else {
+            double span = (double)left * reach;
+            CHECK(span);
+            if (bad) return -1;
+            if (gap >= span) {
+                skip = left;
+            } else {
+                double ratio = gap / reach;
+                CHECK(ratio);
+                if (bad) return -1;
+                skip = (ErlNifSInt64)ratio;
+            }
+        }
+        if (skip >= left) return 0;
+        ia += skip + 1;
+        ib += skip + 1;
+        left -= skip + 1;
+        k += skip + 1;
+    }
+}
+
 static ERL_NIF_TERM first_touch(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[]) {
     ErlNifBinary a, b;
     ErlNifSInt64 sa, sb, ia, ib, left, k = 0;
@@ -422,50 +478,14 @@ static ERL_NIF_TERM first_touch(ErlNifEnv *env, int argc, const ERL_NIF_TERM arg
         !enif_get_int64(env, argv[2], &ia) || !enif_inspect_binary(env, argv[3], &b) ||
         !enif_get_int64(env, argv[4], &sb) || !enif_get_int64(env, argv[5], &ib) ||
         !enif_get_int64(env, argv[6], &left) || !enif_get_double(env, argv[7], &sum) ||
-        !enif_get_double(env, argv[8], &margin) || sa < 24 || sb < 24 || left < 0 || left > MAX_SCAN)
+        !enif_get_double(env, argv[8], &margin))
         return atom_fallback;
     int has_reach = enif_get_double(env, argv[9], &reach);
     if (!has_reach && !enif_is_identical(argv[9], atom_undefined)) return atom_fallback;
-    int bad = 0;
-    double sum2 = sum * sum;
-    CHECK(sum2);
-    if (bad) return atom_fallback;
-    for (;;) {
-        if (ia < 1 || ib < 1 || (uint64_t)ia * (uint64_t)sa > a.size || (uint64_t)ib * (uint64_t)sb > b.size)
-            return atom_fallback;
-        const unsigned char *pa = a.data + (ia - 1) * sa, *pb = b.data + (ib - 1) * sb;
-        double dx = get_double(pb) - get_double(pa), dy = get_double(pb + 8) - get_double(pa + 8),
-               dz = get_double(pb + 16) - get_double(pa + 16);
-        double d2 = dx * dx + dy * dy + dz * dz;
-        CHECK(dx); CHECK(dy); CHECK(dz); CHECK(dx * dx); CHECK(dy * dy); CHECK(dz * dz); CHECK(dx * dx + dy * dy);
-        CHECK(d2);
-        if (bad) return atom_fallback;
-        if (d2 < sum2) return enif_make_int64(env, k);
-        if (left == 0) return atom_none;
-        double gap = sqrt(d2) - sum - margin;
-        CHECK(sqrt(d2) - sum); CHECK(gap);
-        if (bad) return atom_fallback;
-        ErlNifSInt64 skip;
-        if (!has_reach || gap <= reach) {
-            skip = 0;
-        } else {
-            double span = (double)left * reach;
-            CHECK(span);
-            if (bad) return atom_fallback;
-            if (gap >= span) {
-                skip = left;
-            } else {
-                double ratio = gap / reach;
-                CHECK(ratio);
-                if (bad) return atom_fallback;
-                skip = (ErlNifSInt64)ratio;
-            }
-        }
-        if (skip >= left) return atom_none;
-        ia += skip + 1;
-        ib += skip + 1;
-        left -= skip + 1;
-        k += skip + 1;
+    switch (rw_first_touch(&a, sa, ia, &b, sb, ib, left, sum, margin, has_reach, reach, &k)) {
+    case 1: return enif_make_int64(env, k);
+    case 0: return atom_none;
+    default: return atom_fallback;
     }
 }
 
@@ -1367,6 +1387,12 @@ static ErlNifFunc funcs[] = {
     {"nif_island_run", 10, island_run, 0},
     {"nif_measure", 2, measure, 0},
     {"nif_huge_pages", 0, huge_pages, 0},
+    {"nif_cells_new", 0, rw_cells_new, 0},
+    {"nif_cells_store", 5, rw_cells_store, 0},
+    {"nif_cells_probe", 4, rw_cells_probe, 0},
+    {"nif_cells_delete", 4, rw_cells_delete, 0},
+    {"nif_cells_gc", 2, rw_cells_gc, 0},
+    {"nif_cells_dump", 1, rw_cells_dump, 0},
 };
 
 ERL_NIF_INIT(rw_native, funcs, load, NULL, upgrade, NULL)

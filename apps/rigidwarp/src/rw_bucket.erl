@@ -1,6 +1,7 @@
 %% A bucket of the temporal volumetric hash table (TVHT): the process that
 %% holds one share of the cells of Z^3 (rw_hash:bucket/2 says which) and
-%% their contents (rw_cells, pure), and locks cells for one writer at a
+%% their contents (rw_cells; their segments in C where the library is
+%% loaded), and locks cells for one writer at a
 %% time. An entity (rw_body: one body, or a group of bodies in persistent
 %% contact) writes the states of one step at once; rw_tvht is the client
 %% side.
@@ -141,7 +142,11 @@ gvt(Buckets, Gvt, Told, Dt) ->
 -spec init({#model{}, pos_integer(), rw_stats:counters() | undefined, ets:tid() | undefined}) -> {ok, #state{}}.
 init({Model, Dt, Profile, Trace}) ->
     ok = rw_trace:init(Trace),
-    {ok, #state{cells = rw_cells:new(Model, Dt), profile = Profile}}.
+    Store = case rw_native:enabled() of
+                true -> native;
+                false -> erlang
+            end,
+    {ok, #state{cells = rw_cells:new(Model, Dt, Store), profile = Profile}}.
 
 -spec handle_call(term(), gen_server:from(), #state{}) -> {reply, term(), #state{}}.
 handle_call(Req, _From, S) ->

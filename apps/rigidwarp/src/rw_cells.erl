@@ -10,9 +10,18 @@
 %% never touch); only then are member pairs compared, by time and box.
 %% Contacts among the members of one write are not its business: the
 %% writer finds those itself (rw_island).
+%%
+%% The segments can live in the Erlang map below or, for a bucket, in C
+%% (rw_native:cells_new/0, c_src/rw_cells.c), outside its heap: tens of
+%% thousands of bodies leave each bucket hundreds of thousands of words of
+%% segments, which its collections would copy again and again. The C store
+%% does the bookkeeping in integers (which segments a write meets, storing,
+%% truncating, sweeping) and changes in place, so such cells() must be used
+%% linearly; the scan and the contacts stay here. Both give the same
+%% answers (rw_cells_tests).
 -module(rw_cells).
 -include("rigidwarp.hrl").
--export([new/2, probe/3, store/7, delete/5, gc/2, sweep_every/1, contact_ids/3]).
+-export([new/2, new/3, probe/3, store/7, delete/5, gc/2, sweep_every/1, contact_ids/3, contents/1]).
 -export_type([cells/0, ids/0, cid/0, write/0, payload/0, span/0, member_span/0, hit/0, entry/0, bounds/0]).
 
 %% One step's states of one member: T0 is the LVT of the first state,
@@ -55,8 +64,9 @@
     dt :: pos_integer(),                     % substep, ticks
     %% per cell, per writer, its segments newest first: an entity writes
     %% forward in time and a rollback cuts the newest ones, so each list is
-    %% sorted and a probe near the present reads only its head
-    cells = #{} :: #{cell_key() => #{term() => [seg()]}},
+    %% sorted and a probe near the present reads only its head (or the
+    %% same in C)
+    cells = #{} :: #{cell_key() => #{term() => [seg()]}} | {native, rw_native:cells()},
     %% contacts reported from this bucket, by body: [{T, Cid}]
     by_body = #{} :: #{non_neg_integer() => [{non_neg_integer(), cid()}]},
     contacts = #{} :: #{cid() => {Detector :: term(), Other :: term()}},
@@ -64,8 +74,28 @@
 }).
 -opaque cells() :: #cells{}.
 
+%% Cells in the Erlang map: a value like any other.
 -spec new(#model{}, pos_integer()) -> cells().
-new(Model, Dt) -> #cells{model = Model, dt = Dt}.
+new(Model, Dt) -> new(Model, Dt, erlang).
+
+%% Cells in the Erlang map or in C (changed in place: use each value once).
+-spec new(#model{}, pos_integer(), erlang | native) -> cells().
+new(Model, Dt, erlang) -> #cells{model = Model, dt = Dt};
+new(Model, Dt, native) -> #cells{model = Model, dt = Dt, cells = {native, rw_native:cells_new()}}.
+
+%% Every segment, whichever the store: {cell's key, writer, [{Ta, Tb,
+%% write's box, write's T0, member spans}]} newest first, sorted. (A box
+%% with a corner past 64 bits reads as all of space, as the C store keeps
+%% it: a box only ever rules pairs out.)
+-spec contents(cells()) ->
+          [{cell_key(), term(), [{non_neg_integer(), non_neg_integer(), bounds(), non_neg_integer(), [member_span()]}]}].
+contents(#cells{cells = {native, Store}}) ->
+    lists:sort([{key(Cell), Owner, Segs} || {Cell, Owner, Segs} <- rw_native:cells_dump(Store)]);
+contents(#cells{cells = Cells}) ->
+    lists:sort([{Key, Owner, [{Ta, Tb, box64({X0, Y0, Z0, X1, Y1, Z1}), T0, Ms}
+                              || #seg{ta = Ta, tb = Tb, x0 = X0, y0 = Y0, z0 = Z0, x1 = X1, y1 = Y1, z1 = Z1,
+                                      write = {_, T0, _, _}, members = Ms} <- Segs]}
+                || {Key, ByW} <- maps:to_list(Cells), {Owner, Segs} <- maps:to_list(ByW)]).
 
 %% The ids of the contacts at T between the writer's members and other
 %% bodies, {T, lower idx, higher idx, unique}, with one fresh term per pair
@@ -74,24 +104,20 @@ new(Model, Dt) -> #cells{model = Model, dt = Dt}.
 contact_ids(T, Pairs, Uniques) ->
     maps:from_list([{{Idx, OIdx}, {T, min(Idx, OIdx), max(Idx, OIdx), U}} || {{Idx, OIdx}, U} <- lists:zip(Pairs, Uniques)]).
 
+-define(INT64_MIN, -16#8000000000000000).
+-define(INT64_MAX, 16#7FFFFFFFFFFFFFFF).
+box64(Box) ->
+    case lists:all(fun(C) -> C >= ?INT64_MIN andalso C =< ?INT64_MAX end, tuple_to_list(Box)) of
+        true -> Box;
+        false -> {?INT64_MIN, ?INT64_MIN, ?INT64_MIN, ?INT64_MAX, ?INT64_MAX, ?INT64_MAX}
+    end.
+
 %% Nothing before GVT can change any more: forget it (now and then: a
 %% sweep costs a pass over every segment, done when GVT has moved on by
 %% sweep_every/1 since the last).
 -spec gc(non_neg_integer(), cells()) -> cells().
 gc(Gvt, #cells{gc_at = At} = S) when Gvt < At -> S;
 gc(Gvt, #cells{cells = Cells, by_body = By, contacts = C, dt = Dt} = S) ->
-    Recent = fun(_, Segs) ->
-                     case lists:takewhile(fun(#seg{tb = Tb}) -> Tb >= Gvt end, Segs) of
-                         [] -> false;
-                         Kept -> {true, Kept}
-                     end
-             end,
-    Cells1 = maps:filtermap(fun(_, ByWriter) ->
-                                    case maps:filtermap(Recent, ByWriter) of
-                                        Empty when map_size(Empty) =:= 0 -> false;
-                                        Kept -> {true, Kept}
-                                    end
-                            end, Cells),
     By1 = maps:filtermap(fun(_, L) ->
                                  case [X || {T, _} = X <- L, T >= Gvt] of
                                      [] -> false;
@@ -99,7 +125,24 @@ gc(Gvt, #cells{cells = Cells, by_body = By, contacts = C, dt = Dt} = S) ->
                                  end
                          end, By),
     C1 = maps:filter(fun({T, _, _, _}, _) -> T >= Gvt end, C),
-    S#cells{cells = Cells1, by_body = By1, contacts = C1, gc_at = Gvt + sweep_every(Dt)}.
+    S#cells{cells = sweep(Gvt, Cells), by_body = By1, contacts = C1, gc_at = Gvt + sweep_every(Dt)}.
+
+sweep(Gvt, {native, Store} = Cells) ->
+    ok = rw_native:cells_gc(Store, Gvt),
+    Cells;
+sweep(Gvt, Cells) ->
+    Recent = fun(_, Segs) ->
+                     case lists:takewhile(fun(#seg{tb = Tb}) -> Tb >= Gvt end, Segs) of
+                         [] -> false;
+                         Kept -> {true, Kept}
+                     end
+             end,
+    maps:filtermap(fun(_, ByWriter) ->
+                           case maps:filtermap(Recent, ByWriter) of
+                               Empty when map_size(Empty) =:= 0 -> false;
+                               Kept -> {true, Kept}
+                           end
+                   end, Cells).
 
 %% How far GVT moves between two sweeps: 32 substeps of Dt ticks.
 -spec sweep_every(pos_integer()) -> pos_integer().
@@ -110,8 +153,20 @@ sweep_every(Dt) -> 32 * Dt.
 %% pairs meet in several cells: their windows are merged first, so that
 %% each pair is checked once, and not at all when their boxes are apart.
 -spec probe(write(), [span()], cells()) -> {non_neg_integer(), [hit()]} | none.
+probe(Write, Spans, #cells{cells = {native, Store}, model = #model{ccd = Ccd}, dt = Dt} = S) ->
+    Scan = case Ccd of
+               false -> Dt;
+               true -> 0
+           end,
+    scan_found(rw_native:cells_probe(Store, Write, Spans, Scan), Write, none, S);
 probe({Me, _, _, Bounds} = Write, Spans, #cells{cells = Cells} = S) ->
     scan_windows(maps:to_list(span_windows(Spans, Cells, Me, Bounds, #{})), Write, none, S).
+
+%% The windows the C store gave back, scanned (without CCD, each of the
+%% earliest touches it found is the window of its one substep).
+scan_found([], _Write, Best, _S) -> Best;
+scan_found([{I, _, Lo, Hi, Other} | Rest], {_, _, Members, _} = Write, Best, S) ->
+    scan_found(Rest, Write, scan(Lo, bound(Hi, Best), maps:get(I, Members), Other, Best, S), S).
 
 span_windows([], _Cells, _Me, _Bounds, Acc) -> Acc;
 span_windows([{Cell, Ta, Tb, Ms} | Rest], Cells, Me, Bounds, Acc) ->
@@ -253,7 +308,13 @@ narrow(#model{ccd = true}, {_, _, #sphere{radius = RA}, #st{p = PA}, DA},
 -spec store(term(), write(), [span()], {non_neg_integer(), [hit()]} | none,
             non_neg_integer(), ids(), cells()) -> cells().
 store(Owner, Write, Spans, Result, UpTo, Ids, #cells{cells = Cells} = S) ->
-    S1 = S#cells{cells = store_spans(Spans, Owner, Write, UpTo, Cells)},
+    S1 = case Cells of
+             {native, Store} ->
+                 ok = rw_native:cells_store(Store, Owner, Write, Spans, UpTo),
+                 S;
+             _ ->
+                 S#cells{cells = store_spans(Spans, Owner, Write, UpTo, Cells)}
+         end,
     case Result of
         {UpTo, Hits} ->
             lists:foldl(fun({Idx, {OIdx, OPid, _, _, _}, _}, Acc) ->
@@ -288,19 +349,7 @@ record(Cid, T, Idx, Detector, OIdx, Other, #cells{by_body = By, contacts = C} = 
 -spec delete(term(), [non_neg_integer()], non_neg_integer(), [rw_hash:cell()], cells()) ->
           {[{cid(), term(), term()}], cells()}.
 delete(Owner, Idxs, R, Owned, #cells{cells = Cells, by_body = By, contacts = C} = S) ->
-    Cells1 = lists:foldl(
-               fun(Cell, Acc) ->
-                       Key = key(Cell),
-                       case Acc of
-                           #{Key := #{Owner := Segs} = ByW} ->
-                               case truncate(Segs, R) of
-                                   [] when map_size(ByW) =:= 1 -> maps:remove(Key, Acc);
-                                   [] -> Acc#{Key := maps:remove(Owner, ByW)};
-                                   Kept -> Acc#{Key := ByW#{Owner := Kept}}
-                               end;
-                           _ -> Acc
-                       end
-               end, Cells, Owned),
+    Cells1 = truncate_owned(Owner, R, Owned, Cells),
     {Gone, By1} = lists:foldl(fun(Idx, {G, B}) ->
                                       case lists:partition(fun({T, _}) -> T > R end, maps:get(Idx, B, [])) of
                                           {G1, []} -> {G1 ++ G, maps:remove(Idx, B)};
@@ -309,6 +358,23 @@ delete(Owner, Idxs, R, Owned, #cells{cells = Cells, by_body = By, contacts = C} 
                               end, {[], By}, Idxs),
     Lost = lists:ukeysort(1, [{Cid, D, O} || {_, Cid} <- Gone, {D, O} <- [maps:get(Cid, C, none)]]),
     {Lost, S#cells{cells = Cells1, by_body = By1, contacts = maps:without([Cid || {_, Cid} <- Gone], C)}}.
+
+truncate_owned(Owner, R, Owned, {native, Store} = Cells) ->
+    ok = rw_native:cells_delete(Store, Owner, R, Owned),
+    Cells;
+truncate_owned(Owner, R, Owned, Cells) ->
+    lists:foldl(fun(Cell, Acc) ->
+                        Key = key(Cell),
+                        case Acc of
+                            #{Key := #{Owner := Segs} = ByW} ->
+                                case truncate(Segs, R) of
+                                    [] when map_size(ByW) =:= 1 -> maps:remove(Key, Acc);
+                                    [] -> Acc#{Key := maps:remove(Owner, ByW)};
+                                    Kept -> Acc#{Key := ByW#{Owner := Kept}}
+                                end;
+                            _ -> Acc
+                        end
+                end, Cells, Owned).
 
 %% A cell's key in the bucket's map: one integer for the cells within
 %% 2^18 of the origin on every axis (hashed and compared as one word),

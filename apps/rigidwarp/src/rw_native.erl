@@ -12,6 +12,13 @@
 -module(rw_native).
 -export([free_run/13, first_touch/10, island_run/10, measure/2, huge_pages/0, huge_pages_for/1, loaded/0, enabled/0,
          use/1, library/0, library_variable/0]).
+-export([cells_new/0, cells_store/5, cells_probe/4, cells_delete/4, cells_gc/2, cells_dump/1]).
+-export_type([cells/0]).
+
+%% A TVHT bucket's segments kept in C (c_src/rw_cells.c): rw_cells' map of
+%% cells, writers and segments outside the Erlang heap. Changed in place
+%% by its calls, so only its bucket may use it.
+-opaque cells() :: reference().
 -on_load(init/0).
 
 %% (a call's time counted in a traced task: rw_trace)
@@ -173,3 +180,51 @@ measure(Bin, Size) ->
 
 nif_measure(_Bin, _Size) ->
     erlang:nif_error(not_loaded).
+
+%% An empty set of cells, for rw_cells when the library is loaded.
+-spec cells_new() -> cells().
+cells_new() -> nif_cells_new().
+
+%% rw_cells:store/7's segments: Owner's Write in the cells of Spans, each
+%% from its Ta =< UpTo on and cut at UpTo.
+-spec cells_store(cells(), term(), rw_cells:write(), [rw_cells:span()], non_neg_integer()) -> ok.
+cells_store(Store, Owner, Write, Spans, UpTo) ->
+    ?TIMED(nif_cells_store(Store, Owner, Write, Spans, UpTo)).
+
+%% rw_cells:probe/3's windows: the member pairs of Write and of other
+%% writers' segments in the cells of Spans whose times meet, whose writes'
+%% boxes and whose own boxes overlap, each with the window in which they
+%% meet and the other member's payload (a pair's windows on different
+%% writes of the other member apart, in no order). With Dt > 0 (no CCD)
+%% each window is scanned as rw_states:first_touch/6 would, and only the
+%% windows of the earliest touches come back, each narrowed to its substep,
+%% with any the scan left to the Erlang code that begin no later.
+-spec cells_probe(cells(), rw_cells:write(), [rw_cells:span()], non_neg_integer()) ->
+          [{MyIdx :: non_neg_integer(), OtherIdx :: non_neg_integer(), Lo :: non_neg_integer(),
+            Hi :: non_neg_integer(), rw_cells:payload()}].
+cells_probe(Store, Write, Spans, Dt) ->
+    ?TIMED(nif_cells_probe(Store, Write, Spans, Dt)).
+
+%% Owner's segments in Cells end at R at the latest.
+-spec cells_delete(cells(), term(), non_neg_integer(), [rw_hash:cell()]) -> ok.
+cells_delete(Store, Owner, R, Cells) ->
+    ?TIMED(nif_cells_delete(Store, Owner, R, Cells)).
+
+%% Each writer keeps the segments of its own that end at Gvt or later.
+-spec cells_gc(cells(), non_neg_integer()) -> ok.
+cells_gc(Store, Gvt) -> nif_cells_gc(Store, Gvt).
+
+%% All segments, per cell and writer, newest first: {Cell, Owner, [{Ta,
+%% Tb, write's box, write's T0, member spans}]} (a box with a corner past
+%% 64 bits reads as all of space).
+-spec cells_dump(cells()) ->
+          [{rw_hash:cell(), term(), [{non_neg_integer(), non_neg_integer(), rw_cells:bounds(), non_neg_integer(),
+                                       [rw_cells:member_span()]}]}].
+cells_dump(Store) -> nif_cells_dump(Store).
+
+nif_cells_new() -> erlang:nif_error(not_loaded).
+nif_cells_store(_Store, _Owner, _Write, _Spans, _UpTo) -> erlang:nif_error(not_loaded).
+nif_cells_probe(_Store, _Write, _Spans, _Dt) -> erlang:nif_error(not_loaded).
+nif_cells_delete(_Store, _Owner, _R, _Cells) -> erlang:nif_error(not_loaded).
+nif_cells_gc(_Store, _Gvt) -> erlang:nif_error(not_loaded).
+nif_cells_dump(_Store) -> erlang:nif_error(not_loaded).

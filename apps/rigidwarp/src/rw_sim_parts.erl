@@ -42,12 +42,19 @@ bucket_pool(M, Dt, N, Profile, Trace, Bodies) ->
     #{id => buckets, type => supervisor, restart => permanent,
       start => {supervisor, start_link, [?MODULE, {buckets, M, Dt, N, Profile, Trace, Bodies}]}}.
 
-%% A bucket keeps the segments of every body writing in its cells since
-%% GVT, and a heap sized to what survived its last collection copies them
-%% again and again: its heap never shrinks below 3200 words per body it
-%% holds on average, at most 1M words (8 MiB). (20,000 spheres ran 10-15 %
-%% faster with 1M words than with the default 233; 500 the same.)
-bucket_heap(Bodies, Buckets) -> max(233, min(1 bsl 20, 3200 * Bodies div Buckets)).
+%% A bucket whose segments are in the Erlang heap (rw_cells without the C
+%% library) keeps those of every body writing in its cells since GVT, and a
+%% heap sized to what survived its last collection copies them again and
+%% again: its heap never shrinks below 3200 words per body it holds on
+%% average, at most 1M words (8 MiB). (20,000 spheres ran 10-15 % faster
+%% with 1M words than with the default 233; 500 the same.) With the
+%% segments in C its heap holds only the requests in hand: 8192 words,
+%% whose collections stay in the caches.
+bucket_heap(Bodies, Buckets) ->
+    case rw_native:enabled() of
+        true -> 8192;
+        false -> max(233, min(1 bsl 20, 3200 * Bodies div Buckets))
+    end.
 
 %% The child spec of the bodies' supervisor.
 -spec body_pool() -> supervisor:child_spec().

@@ -1,0 +1,153 @@
+%% The cells of a bucket kept in C (rw_native:cells_new/0) against the same
+%% kept in the Erlang map: after every write, delete and sweep of random
+%% bodies flying through a few cells, the same segments, and every probe
+%% finds the same first contacts (bit for bit: floats compared in the
+%% external format).
+-module(rw_cells_tests).
+-include_lib("proper/include/proper.hrl").
+-include_lib("eunit/include/eunit.hrl").
+-include_lib("rw_physics/include/rw_physics.hrl").
+-export([ops/0, run/2]).
+
+-define(CELL, 1.0).
+-define(DT, 1).
+
+native_cells_are_the_erlang_cells_test_() ->
+    case rw_native:loaded() of
+        false ->
+            [];
+        true ->
+            {timeout, 120,
+             fun() ->
+                     ?assert(proper:quickcheck(prop_same(#model{}), [{numtests, 300}, {to_file, user}])),
+                     ?assert(proper:quickcheck(prop_same(#model{ccd = true}), [{numtests, 100}, {to_file, user}]))
+             end}
+    end.
+
+%% Far out, cells and boxes past 64 bits: the C store keeps the cells as
+%% terms and reads such boxes as all of space; the answers are the same.
+far_cells_test() ->
+    case rw_native:loaded() of
+        false ->
+            ok;
+        true ->
+            Far = 1.0e22,
+            Ops = [{write, a, 0, [{0, {Far, 0.0, 0.0}, {1.0, 0.0, 0.0}}], 8},
+                   {write, b, 0, [{1, {Far + 3.0, 0.0, 0.0}, {-1.0, 0.0, 0.0}}], 8},
+                   {write, c, 0, [{2, {Far + 3.0, 0.5, 0.0}, {-1.0, 0.0, 0.0}}], 8},
+                   {delete, b, 2},
+                   {write, b, 3, [{1, {Far + 1.0, 0.0, 0.0}, {-1.0, 0.0, 0.0}}], 8},
+                   {gc, 4}],
+            {Hits, _, _} = run(#model{}, Ops),
+            ?assertNotEqual([], [H || H <- Hits, H =/= none])
+    end.
+
+prop_same(Model) ->
+    ?FORALL(Ops, ops(), begin
+                            _ = run(Model, Ops),
+                            true
+                        end).
+
+%% Run Ops on both stores, asserting at every step; the probes' results.
+run(Model, Ops) ->
+    lists:foldl(fun(Op, {Hits, E, N}) ->
+                        {Hit, E1, N1} = apply_op(Model, Op, E, N),
+                        ?assertEqual(rw_cells:contents(E1), rw_cells:contents(N1)),
+                        {[Hit | Hits], E1, N1}
+                end, {[], rw_cells:new(Model, ?DT, erlang), rw_cells:new(Model, ?DT, native)}, Ops).
+
+apply_op(Model, {write, Owner, T0, Bodies, Substeps}, E, N) ->
+    {Write, Spans} = write(Model, Owner, T0, Bodies, Substeps),
+    Found = rw_cells:probe(Write, Spans, E),
+    ?assertEqual(canonical(Found), canonical(rw_cells:probe(Write, Spans, N))),
+    {UpTo, Pairs} = case Found of
+                        none -> {T0 + (Substeps - 1) * ?DT, []};
+                        {T, Hits} -> {T, [{I, O} || {I, {O, _, _, _, _}, _} <- Hits]}
+                    end,
+    Ids = rw_cells:contact_ids(UpTo, Pairs, lists:seq(1, length(Pairs))),
+    {Found, rw_cells:store(Owner, Write, Spans, Found, UpTo, Ids, E),
+     rw_cells:store(Owner, Write, Spans, Found, UpTo, Ids, N)};
+apply_op(_Model, {delete, Owner, R}, E, N) ->
+    Owned = lists:usort([Cell || {Cell, O, _} <- cells_of(E), O =:= Owner]),
+    Idxs = [Idx || {_, O, Segs} <- rw_cells:contents(E), O =:= Owner, {_, _, _, _, Ms} <- Segs, {Idx, _, _} <- Ms],
+    {LostE, E1} = rw_cells:delete(Owner, lists:usort(Idxs), R, Owned, E),
+    {LostN, N1} = rw_cells:delete(Owner, lists:usort(Idxs), R, Owned, N),
+    ?assertEqual(LostE, LostN),
+    {none, E1, N1};
+apply_op(_Model, {gc, Gvt}, E, N) ->
+    {none, rw_cells:gc(Gvt, E), rw_cells:gc(Gvt, N)}.
+
+%% The cells each writer is in (as {X, Y, Z}), read back from its spans.
+cells_of(Cells) ->
+    [{unkey(Key), Owner, Segs} || {Key, Owner, Segs} <- rw_cells:contents(Cells)].
+
+unkey({_, _, _} = Cell) -> Cell;
+unkey(Key) ->
+    Off = 16#40000,
+    {(Key bsr 38) - Off, ((Key bsr 19) band 16#7FFFF) - Off, (Key band 16#7FFFF) - Off}.
+
+%% A probe's answer with its hits in one order, floats as their bits.
+canonical(none) -> none;
+canonical({T, Hits}) -> {T, lists:sort([term_to_binary(H, [{minor_version, 2}]) || H <- Hits])}.
+
+%% Owner's write of Bodies ({Idx, Position, Velocity}) flying free for
+%% Substeps from T0, and its spans in the one bucket.
+write(#model{ccd = Ccd} = Model, Owner, T0, Bodies, Substeps) ->
+    Spheres = list_to_tuple([#sphere{idx = Idx, id = integer_to_binary(Idx), radius = 0.25, mass = 1.0, inv_mass = 1.0,
+                                     inv_inertia = 16.0} || {Idx, _, _} <- Bodies]),
+    Steps = [begin
+                 Sts = [#st{p = add(P, scale(V, K * 0.001)), v = V} || K <- lists:seq(0, Substeps - 1)],
+                 Disps = case Ccd of
+                             true -> [scale(V, 0.001) || _ <- Sts];
+                             false -> undefined
+                         end,
+                 rw_states:pack(Sts, Disps, false, Ccd)
+             end || {_, P, V} <- Bodies],
+    {Write, [{0, _Cells, Spans}]} = rw_tvht_plan:write(Owner, T0, Spheres, Steps, Model, {?CELL, ?DT}, 1),
+    {Write, Spans}.
+
+add({A, B, C}, {X, Y, Z}) -> {A + X, B + Y, C + Z}.
+scale({X, Y, Z}, K) -> {X * K, Y * K, Z * K}.
+
+%%% Generators: four writers, each with its own bodies (a writer's
+%%% bodies are its own, as an entity's members are), moving through the
+%%% cells around the origin fast enough to cross some within a write.
+
+ops() ->
+    ?LET(Ops, non_empty(list(frequency([{6, write_op()}, {2, delete_op()}, {1, gc_op()}]))), times(Ops, #{}, 0)).
+
+write_op() ->
+    ?LET({Owner, N}, {oneof([a, b, c, d]), range(1, 3)},
+         {write, Owner, [{body(), vec(-1.0, 1.0), vec(-400.0, 400.0)} || _ <- lists:seq(1, N)], range(1, 12)}).
+
+delete_op() -> {delete, oneof([a, b, c, d]), range(0, 6)}.
+
+gc_op() -> {gc, range(0, 6)}.
+
+body() -> range(0, 2).
+
+vec(Lo, Hi) -> {float(Lo, Hi), float(Lo, Hi), float(Lo, Hi)}.
+
+%% Times that run forward per writer, as an entity's writes do: a write
+%% starts where the writer's last one ended (or earlier, after a delete);
+%% deletes and sweeps are given offsets from the present. Each writer's
+%% bodies get their own idx (Owner's rank * 3 + the body).
+times([], _Ends, _Now) -> [];
+times([{write, Owner, Bodies, Substeps} | Rest], Ends, Now) ->
+    T0 = maps:get(Owner, Ends, 0),
+    Rank = rank(Owner),
+    Own = lists:ukeysort(1, [{Rank * 3 + B, P, V} || {B, P, V} <- Bodies]),
+    End = T0 + Substeps * ?DT,
+    [{write, Owner, T0, Own, Substeps} | times(Rest, Ends#{Owner => End}, max(Now, End))];
+times([{delete, Owner, Back} | Rest], Ends, Now) ->
+    R = max(0, maps:get(Owner, Ends, 0) - Back * ?DT),
+    [{delete, Owner, R} | times(Rest, Ends#{Owner => min(maps:get(Owner, Ends, 0), R + ?DT)}, Now)];
+times([{gc, Back} | Rest], Ends, Now) ->
+    %% GVT: at most the earliest end of the writers
+    Gvt = max(0, lists:min([Now | maps:values(Ends)]) - Back * ?DT),
+    [{gc, Gvt} | times(Rest, Ends, Now)].
+
+rank(a) -> 0;
+rank(b) -> 1;
+rank(c) -> 2;
+rank(d) -> 3.
