@@ -16,9 +16,10 @@
 %% thousands of bodies leave each bucket hundreds of thousands of words of
 %% segments, which its collections would copy again and again. The C store
 %% does the bookkeeping in integers (which segments a write meets, storing,
-%% truncating, sweeping) and changes in place, so such cells() must be used
-%% linearly; the scan and the contacts stay here. Both give the same
-%% answers (rw_cells_tests).
+%% truncating, sweeping) and, without CCD, the first-touch scan of the pairs
+%% it finds, handing back only the earliest; it changes in place, so such
+%% cells() must be used linearly. The contacts are made here either way,
+%% and both stores give the same answers (rw_cells_tests).
 -module(rw_cells).
 -include("rigidwarp.hrl").
 -export([new/2, new/3, probe/3, store/7, delete/5, gc/2, sweep_every/1, contact_ids/3, contents/1]).
@@ -104,6 +105,8 @@ contents(#cells{cells = Cells}) ->
 contact_ids(T, Pairs, Uniques) ->
     maps:from_list([{{Idx, OIdx}, {T, min(Idx, OIdx), max(Idx, OIdx), U}} || {{Idx, OIdx}, U} <- lists:zip(Pairs, Uniques)]).
 
+%% A box as the C store keeps it: all of space where a corner does not
+%% fit 64 bits.
 -define(INT64_MIN, -16#8000000000000000).
 -define(INT64_MAX, 16#7FFFFFFFFFFFFFFF).
 box64(Box) ->
