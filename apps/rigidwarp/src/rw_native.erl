@@ -212,7 +212,7 @@ cells_delete(Store, Owner, R, Cells) ->
 
 %% Each writer keeps the segments of its own that end at Gvt or later.
 -spec cells_gc(cells(), non_neg_integer()) -> ok.
-cells_gc(Store, Gvt) -> nif_cells_gc(Store, Gvt).
+cells_gc(Store, Gvt) -> ?TIMED(nif_cells_gc(Store, Gvt)).
 
 %% All segments, per cell and writer, newest first: {Cell, Owner, [{Ta,
 %% Tb, write's box, write's T0, member spans}]} (a box with a corner past
