@@ -101,6 +101,18 @@ static void *zalloc(size_t size) {
     return p;
 }
 
+/* Room for one more in an array of *items holding n of cap (doubled,
+   from 4). */
+static int reserve(void **items, size_t *cap, size_t n, size_t size) {
+    if (n < *cap) return 1;
+    size_t grown = *cap ? *cap * 2 : 4;
+    void *p = enif_realloc(*items, grown * size);
+    if (!p) return 0;
+    *items = p;
+    *cap = grown;
+    return 1;
+}
+
 /* Scratch memory for one call, freed at its end: from a buffer on the
    stack, then from the allocator (a probe or a store parsed and collected
    into a dozen small blocks each). */
@@ -536,30 +548,22 @@ ERL_NIF_TERM rw_cells_store(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
         }
         struct wsegs *ws = find_writer(c, owner, hash);
         if (!ws) {
-            if (c->n == c->cap) {
-                size_t cap = c->cap ? c->cap * 2 : 4;
-                struct wsegs *nw = enif_realloc(c->writers, cap * sizeof *nw);
-                if (!nw) {
-                    ok = 0;
-                    break;
-                }
-                c->writers = nw;
-                c->cap = cap;
+            void *writers = c->writers;
+            if (!reserve(&writers, &c->cap, c->n, sizeof *c->writers)) {
+                ok = 0;
+                break;
             }
+            c->writers = writers;
             ws = &c->writers[c->n++];
             memset(ws, 0, sizeof *ws);
             ws->owner_hash = hash;
         }
-        if (ws->n == ws->cap) {
-            size_t cap = ws->cap ? ws->cap * 2 : 4;
-            struct seg *ns = enif_realloc(ws->segs, cap * sizeof *ns);
-            if (!ns) {
-                ok = 0;
-                break;
-            }
-            ws->segs = ns;
-            ws->cap = cap;
+        void *segs = ws->segs;
+        if (!reserve(&segs, &ws->cap, ws->n, sizeof *ws->segs)) {
+            ok = 0;
+            break;
         }
+        ws->segs = segs;
         struct seg *s = &ws->segs[ws->n];
         s->ms = NULL;
         if (sp->n > 1 && !(s->ms = enif_alloc(sp->n * sizeof *s->ms))) {
