@@ -199,7 +199,7 @@ static struct cell *find_cell(struct cells *cs, const struct key *k) {
 
 static int grow_table(struct cells *cs) {
     size_t size = cs->size * 2;
-    struct cell **table = zalloc((size) * sizeof *table);
+    struct cell **table = zalloc(size * sizeof *table);
     if (!table) return 0;
     for (size_t i = 0; i < cs->size; i++) {
         for (struct cell *c = cs->table[i], *next; c; c = next) {
@@ -216,7 +216,7 @@ static int grow_table(struct cells *cs) {
 
 static struct cell *add_cell(struct cells *cs, const struct key *k) {
     if (cs->count >= cs->size && !grow_table(cs)) return NULL;
-    struct cell *c = zalloc((1) * sizeof *c);
+    struct cell *c = zalloc(sizeof *c);
     if (!c) return NULL;
     c->hash = k->hash;
     c->x = k->x;
@@ -316,7 +316,7 @@ ERL_NIF_TERM rw_cells_new(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[]) {
     struct cells *cs = enif_alloc_resource(cells_type, sizeof *cs);
     memset(cs, 0, sizeof *cs);
     cs->size = 64;
-    cs->table = zalloc((cs->size) * sizeof *cs->table);
+    cs->table = zalloc(cs->size * sizeof *cs->table);
     cs->lock = enif_mutex_create("rw_cells");
     if (!cs->table || !cs->lock) {
         enif_release_resource(cs);
@@ -493,41 +493,35 @@ static void remove_writer(struct cell *c, struct wsegs *ws) {
 ERL_NIF_TERM rw_cells_store(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[]) {
     struct cells *cs;
     ErlNifSInt64 upto, t0, box[6];
-    ERL_NIF_TERM owner;
+    ERL_NIF_TERM owner = argv[1], writer;
     struct payload *ps;
     size_t np, nspans;
     struct span *spans;
     unsigned char scratch[SCRATCH];
     struct arena ar = {scratch, sizeof scratch, 0, NULL};
     (void)argc;
+    /* the write's terms, copied once for all its segments here, and read
+       from the copy (a small binary is copied with its term) */
+    ErlNifEnv *wenv = enif_alloc_env();
+    ERL_NIF_TERM copy = enif_make_copy(wenv, argv[2]);
     if (!get_cells(env, argv[0], &cs) || !enif_get_int64(env, argv[4], &upto) ||
-        !get_write(env, &ar, argv[2], &owner, &t0, box, &ps, &np) || !get_spans(env, &ar, argv[3], &spans, &nspans)) {
+        !get_write(wenv, &ar, copy, &writer, &t0, box, &ps, &np) || !get_spans(env, &ar, argv[3], &spans, &nspans)) {
+        enif_free_env(wenv);
         arena_free(&ar);
         return enif_make_badarg(env);
     }
-    owner = argv[1];
     struct write *w = enif_alloc(sizeof *w + np * sizeof *ps);
     if (!w) {
+        enif_free_env(wenv);
         arena_free(&ar);
         return enif_raise_exception(env, enif_make_atom(env, "enomem"));
     }
-    /* the write's terms, copied once for all its segments here */
-    w->env = enif_alloc_env();
-    ERL_NIF_TERM copy = enif_make_copy(w->env, argv[2]);
-    int arity;
-    const ERL_NIF_TERM *e;
-    enif_get_tuple(w->env, copy, &arity, &e);
-    w->owner = enif_make_copy(w->env, owner);
+    w->env = wenv;
+    w->owner = enif_make_copy(wenv, owner);
     w->t0 = t0;
     w->refs = 1;
     w->n = np;
     memcpy(w->members, ps, np * sizeof *ps);
-    for (size_t i = 0; i < np; i++) {
-        ERL_NIF_TERM key = enif_make_long(w->env, ps[i].idx);
-        enif_get_map_value(w->env, e[2], key, &w->members[i].term);
-        /* (a small binary is copied with the term) */
-        get_scan(w->env, w->members[i].term, &w->members[i]);
-    }
     ErlNifUInt64 hash = owner_hash(owner);
     enif_mutex_lock(cs->lock);
     int ok = 1;
@@ -603,11 +597,13 @@ ERL_NIF_TERM rw_cells_store(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
 }
 
 /* A pair window: member Me of the prober and O of the write at OT0. */
-/* (touch: 1 found at lo, -1 none, -2 boxes apart, 0 for the Erlang scan) */
+/* (other: O's payload in w, once the windows are gathered; touch: 1
+   found at lo, -1 none, -2 boxes apart, 0 for the Erlang scan) */
 struct window {
     long me, o;
     ErlNifSInt64 ot0, lo, hi;
     const struct write *w;
+    const struct payload *other;
     int touch;
 };
 
@@ -704,14 +700,13 @@ ERL_NIF_TERM rw_cells_probe(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
                when the one before ends in the window or later */
             if (wr->tb < sp->ta || is_writer(wr, me, my_hash)) continue;
             for (size_t s = wr->n; ok && s-- > 0;) {
+                struct seg *sg = &wr->segs[s];
                 if (s == wr->n - 1) {
                     if (wr->ta > sp->tb || disjoint(box, wr->box)) continue;
-                } else if (s == wr->n - 2 && wr->prev_tb < sp->ta) {
-                    break;
+                } else {
+                    if ((s == wr->n - 2 ? wr->prev_tb : sg->tb) < sp->ta) break;
+                    if (sg->ta > sp->tb || disjoint(box, sg->box)) continue;
                 }
-                struct seg *sg = &wr->segs[s];
-                if (sg->tb < sp->ta) break;
-                if (sg->ta > sp->tb || disjoint(box, sg->box)) continue;
                 for (size_t a = 0; ok && a < sp->n; a++) {
                     const struct mspan *m = &sp->ms[a];
                     const struct mspan *oms = seg_ms(sg);
@@ -736,6 +731,7 @@ ERL_NIF_TERM rw_cells_probe(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
             ok = 0;
             break;
         }
+        x->other = other;
         x->touch = 0;
         if (disjoint(p->box, other->box)) {
             x->touch = -2;
@@ -769,10 +765,9 @@ ERL_NIF_TERM rw_cells_probe(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
     for (size_t i = ws.n; ok && i-- > 0;) {
         struct window *x = &ws.w[i];
         if (x->touch < 0 || x->lo > first) continue;
-        const struct payload *other = find_payload(x->w->members, x->w->n, x->o);
         ERL_NIF_TERM t = enif_make_tuple5(env, enif_make_long(env, x->me), enif_make_long(env, x->o),
                                           enif_make_int64(env, x->lo), enif_make_int64(env, x->hi),
-                                          enif_make_copy(env, other->term));
+                                          enif_make_copy(env, x->other->term));
         result = enif_make_list_cell(env, t, result);
     }
     enif_mutex_unlock(cs->lock);
