@@ -15,7 +15,7 @@
 -module(rw_bucket).
 -behaviour(gen_server).
 -include("rigidwarp.hrl").
--export([start_link/5, lock_probe/4, commit_unlock/4, probe_commit/5, lock_delete/5, unlock/2, gvt/4]).
+-export([start_link/6, lock_probe/4, commit_unlock/4, probe_commit/5, lock_delete/5, unlock/2, gvt/4]).
 -export([init/1, handle_call/3, handle_cast/2, handle_info/2]).
 
 -record(state, {
@@ -33,14 +33,16 @@
     profile :: rw_stats:counters() | undefined
 }).
 
-%% Profile: the simulation's counters when its work is profiled; Trace:
-%% where its work is recorded (rw_trace) when the simulation is traced;
-%% its heap never shrinks below MinHeap words. A bucket runs at high
-%% priority, as does a caller while it waits for its answer (locked_call/2).
--spec start_link(#model{}, pos_integer(), rw_stats:counters() | undefined, ets:tid() | undefined, pos_integer()) ->
-          {ok, pid()}.
-start_link(Model, Dt, Profile, Trace, MinHeap) ->
-    gen_server:start_link(?MODULE, {Model, Dt, Profile, Trace},
+%% Store: where the segments are kept (rw_cells:new/3: native only where
+%% the C library is loaded); Profile: the simulation's counters when its
+%% work is profiled; Trace: where its work is recorded (rw_trace) when the
+%% simulation is traced; its heap never shrinks below MinHeap words. A
+%% bucket runs at high priority, as does a caller while it waits for its
+%% answer (locked_call/2).
+-spec start_link(#model{}, pos_integer(), erlang | native, rw_stats:counters() | undefined, ets:tid() | undefined,
+                 pos_integer()) -> {ok, pid()}.
+start_link(Model, Dt, Store, Profile, Trace, MinHeap) ->
+    gen_server:start_link(?MODULE, {Model, Dt, Store, Profile, Trace},
                           [{spawn_opt, [{min_heap_size, MinHeap}, {priority, high}]}]).
 
 %% Lock Cells for the caller, then find the earliest LVT at which one of
@@ -139,13 +141,10 @@ gvt(Buckets, Gvt, Told, Dt) ->
 
 %%% gen_server
 
--spec init({#model{}, pos_integer(), rw_stats:counters() | undefined, ets:tid() | undefined}) -> {ok, #state{}}.
-init({Model, Dt, Profile, Trace}) ->
+-spec init({#model{}, pos_integer(), erlang | native, rw_stats:counters() | undefined, ets:tid() | undefined}) ->
+          {ok, #state{}}.
+init({Model, Dt, Store, Profile, Trace}) ->
     ok = rw_trace:init(Trace),
-    Store = case rw_native:enabled() of
-                true -> native;
-                false -> erlang
-            end,
     {ok, #state{cells = rw_cells:new(Model, Dt, Store), profile = Profile}}.
 
 -spec handle_call(term(), gen_server:from(), #state{}) -> {reply, term(), #state{}}.

@@ -42,19 +42,17 @@ bucket_pool(M, Dt, N, Profile, Trace, Bodies) ->
     #{id => buckets, type => supervisor, restart => permanent,
       start => {supervisor, start_link, [?MODULE, {buckets, M, Dt, N, Profile, Trace, Bodies}]}}.
 
-%% A bucket whose segments are in the Erlang heap (rw_cells without the C
-%% library) keeps those of every body writing in its cells since GVT, and a
+%% The pool decides once where its buckets keep their segments (rw_cells:
+%% in C where the library is loaded) and sizes their heaps for it. A
+%% bucket whose segments are in the Erlang heap keeps those of every body writing in its cells since GVT, and a
 %% heap sized to what survived its last collection copies them again and
 %% again: its heap never shrinks below 3200 words per body it holds on
 %% average, at most 1M words (8 MiB). (20,000 spheres ran 10-15 % faster
 %% with 1M words than with the default 233; 500 the same.) With the
 %% segments in C its heap holds only the requests in hand: 8192 words,
 %% whose collections stay in the caches.
-bucket_heap(Bodies, Buckets) ->
-    case rw_native:enabled() of
-        true -> 8192;
-        false -> max(233, min(1 bsl 20, 3200 * Bodies div Buckets))
-    end.
+bucket_heap(native, _Bodies, _Buckets) -> 8192;
+bucket_heap(erlang, Bodies, Buckets) -> max(233, min(1 bsl 20, 3200 * Bodies div Buckets)).
 
 %% The child spec of the bodies' supervisor.
 -spec body_pool() -> supervisor:child_spec().
@@ -73,10 +71,14 @@ init(sim) ->
     {ok, {#{strategy => rest_for_one, intensity => 0, period => 1}, []}};
 init({buckets, M, Dt, N, Profile, Trace, Bodies}) ->
     ok = rw_native:huge_pages_for(Bodies),
-    Heap = bucket_heap(Bodies, N),
+    Store = case rw_native:enabled() of
+                true -> native;
+                false -> erlang
+            end,
+    Heap = bucket_heap(Store, Bodies, N),
     {ok, {#{strategy => one_for_all, intensity => 0, period => 1},
-          [#{id => {bucket, I}, start => {rw_bucket, start_link, [M, Dt, Profile, Trace, Heap]}, restart => permanent,
-             shutdown => 1000} || I <- lists:seq(0, N - 1)]}};
+          [#{id => {bucket, I}, start => {rw_bucket, start_link, [M, Dt, Store, Profile, Trace, Heap]},
+             restart => permanent, shutdown => 1000} || I <- lists:seq(0, N - 1)]}};
 init(bodies) ->
     {ok, {#{strategy => simple_one_for_one, intensity => 0, period => 1},
           [#{id => body, start => {rw_body, start_link, []}, restart => temporary, shutdown => 1000}]}}.

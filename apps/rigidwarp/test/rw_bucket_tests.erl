@@ -48,7 +48,7 @@ told() ->
 %% the runnable bodies of normal priority. After the call the caller has
 %% its own priority again, whatever it was.
 callers_wait_at_high_priority_test() ->
-    {ok, Bucket} = rw_bucket:start_link(#model{}, 1, undefined, undefined, 233),
+    {ok, Bucket} = rw_bucket:start_link(#model{}, 1, erlang, undefined, undefined, 233),
     ?assertEqual({priority, high}, process_info(Bucket, priority)),
     unlink(Bucket),
     exit(Bucket, shutdown),
