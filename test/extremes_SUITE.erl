@@ -16,12 +16,13 @@
          far_coordinates_1e9/1, mass_ratio_1e6/1, restitution_0/1, restitution_1_energy/1, restitution_1_energy_ccd/1,
          resting_sphere_60_s/1, cradle_of_two_cylinders/1, incline_holds_slides_and_rolls/1,
          wall_and_sphere_at_once/1, floor_and_tilted_plane_at_once/1, sphere_across_cells_diagonally/1,
-         container_and_slot_crossed_within_a_substep/1]).
+         container_and_slot_crossed_within_a_substep/1, sweeps_past_their_caps_stop_the_run/1]).
 
 suite() -> [{timetrap, {minutes, 5}}].
 
 all() -> [substeps_below_1_ms, substeps_1_to_250_ms, strides_512_and_1024, sphere_at_100_radii_per_substep,
-          sphere_across_cells_diagonally, container_and_slot_crossed_within_a_substep, far_coordinates_1e9,
+          sphere_across_cells_diagonally, container_and_slot_crossed_within_a_substep,
+          sweeps_past_their_caps_stop_the_run, far_coordinates_1e9,
           mass_ratio_1e6, restitution_0, restitution_1_energy, restitution_1_energy_ccd, wall_and_sphere_at_once, floor_and_tilted_plane_at_once,
           resting_sphere_60_s,
           cradle_of_two_cylinders, incline_holds_slides_and_rolls].
@@ -173,6 +174,56 @@ sphere_at_100_radii_per_substep(_Config) ->
     Tunnel = lists:last(reference(Make(false))),
     ?assertBitwise(5000.0, vx(<<"a">>, Tunnel)),
     ?assert(x(<<"a">>, Tunnel) > x(<<"b">>, Tunnel)).
+
+%% A sphere faster than its scene's energy allows (its velocity raised
+%% after validation, as physics that gained energy would raise it) sweeps
+%% more cells than a substep or a write may hold: the reference stops at
+%% 1e8 m/s (1e5 m a substep, 500,000 cells of 0.2 m), Time Warp at 1e8
+%% m/s and at 1e6 m/s along a diagonal (some 30,000 cells a substep, within
+%% the cap, but a write of 64 substeps covers far more than its cap), each
+%% with one message naming the sweep, within seconds and a bounded heap
+%% (the reference) or a gigabyte more (Time Warp; the run is stopped there
+%% if not).
+sweeps_past_their_caps_stop_the_run(_Config) ->
+    Base = scene(#{<<"duration_ms">> => 1000, <<"model">> => #{<<"ccd">> => true},
+                   <<"bodies">> => [sphere(<<"a">>, 0.1, 1, [0, 0, 0], [1, 0, 0]),
+                                    sphere(<<"b">>, 0.1, 1, [0, 5, 0], [0, 0, 0])]}),
+    At = fun(V) -> #scene{initial = [A | Rest]} = Base, Base#scene{initial = [A#st{v = V} | Rest]} end,
+    Reference = rw_test_lib:bounded(fun() -> rigidwarp:run_scene(At({1.0e8, 0.0, 0.0}), #{engine => reference}) end),
+    ct:log("reference: ~p", [Reference]),
+    ?assertMatch({ok, {error, "the run stopped: a sphere of radius 0.1 m moving 1.0e5 m along an axis in one substep "
+                               "sweeps more than 65536 cells of 0.2 m" ++ _}}, Reference),
+    [begin
+         Message = timewarp_crash(At(V)),
+         ct:log("timewarp at ~p: ~ts", [V, Message]),
+         ?assertMatch({match, _}, re:run(Message, "^the simulation crashed past its restart budget: \\{body,<<\"a\">>\\} died: "
+                                                  "\\Q" ++ Expected ++ "\\E"))
+     end || {V, Expected} <- [{{1.0e8, 0.0, 0.0}, "a sphere of radius 0.1 m moving 1.0e5 m along an axis in one substep "
+                                                   "sweeps more than 65536 cells of 0.5 m"},
+                              {{1.0e6, 1.0e6, 1.0e6}, "a sphere's write to the TVHT covers more than 262144 cells"}]],
+    ok.
+
+%% How a Time Warp run of Scene crashes (formatted), with no restart; it
+%% is stopped, and the case fails, if it takes a gigabyte more than when
+%% it started or a minute.
+timewarp_crash(Scene) ->
+    Before = erlang:memory(total),
+    {ok, {rw_sim, Run, _} = Sim} = rw_timewarp:start(Scene, #{owner => self(), max_restarts => 0}),
+    Deadline = erlang:monotonic_time(millisecond) + 60000,
+    Wait = fun Wait() ->
+                   receive
+                       {rw_crashed, Run, Who, Reason} -> rigidwarp:format_error({crashed, Who, Reason})
+                   after 100 ->
+                       case erlang:memory(total) - Before > 1000000000 orelse
+                           erlang:monotonic_time(millisecond) > Deadline of
+                           true -> ok = rw_timewarp:stop(Sim), ct:fail({not_stopped, erlang:memory(total) - Before});
+                           false -> Wait()
+                       end
+                   end
+           end,
+    Message = Wait(),
+    ok = rw_timewarp:stop(Sim),
+    Message.
 
 %% A head-on elastic collision around x = +-1e9 m (a double's spacing there
 %% is 1.2e-7 m): the velocities swap exactly, positions stay within 1e-6 m.

@@ -1,7 +1,7 @@
 %% Helpers shared by the common_test suites in test/ (and by the apps'
 %% EUnit tests: rebar3 compiles test/ for both).
 -module(rw_test_lib).
--export([root/0, scenario/1, test_scene/1, scenes_with_reference/1, reference_frames/1, bounded_reference/1,
+-export([root/0, scenario/1, test_scene/1, scenes_with_reference/1, reference_frames/1, bounded_reference/1, bounded/1,
          runaway/3, check_runaways/1, escript/0, run_escript/1,
          bitwise_equal/2, assert_bitwise/2, assert_bitwise/3, first_difference/2,
          both_ways/1, awkward_double/0, awkward_vec/0]).
@@ -121,19 +121,32 @@ drain(Ref) -> receive {Ref, F} -> [F | drain(Ref)] after 0 -> [] end.
 %% gaining speed at every bounce sweeps ever more cells) gives an error
 %% naming the bound, instead of filling the machine's memory.
 -spec bounded_reference(tuple()) ->
-          {ok, {[tuple()], map()}} | {error, {reference_too_slow, pos_integer()} | {reference_too_big, pos_integer()}}.
+          {ok, {[tuple()], map()}} | {error, {reference_too_slow, pos_integer()} | {reference_too_big, pos_integer()}
+                                             | {reference_crashed, term()}}.
 bounded_reference(Scene) ->
+    case bounded(fun() -> reference_run(Scene) end) of
+        {ok, _} = Ok -> Ok;
+        {error, too_big} -> {error, {reference_too_big, ?REFERENCE_MAX_WORDS}};
+        {error, too_slow} -> {error, {reference_too_slow, ?REFERENCE_MAX_MS}};
+        {error, {crashed, Reason}} -> {error, {reference_crashed, Reason}}
+    end.
+
+%% Fun's result, from a process of its own whose heap and time are bounded
+%% as the reference's (two orders of magnitude above a random scene's).
+-spec bounded(fun(() -> term())) -> {ok, term()} | {error, too_big | too_slow | {crashed, term()}}.
+bounded(Fun) ->
     Tag = make_ref(),
-    {Pid, Mon} = spawn_opt(fun() -> exit({Tag, reference_run(Scene)}) end,
+    {Pid, Mon} = spawn_opt(fun() -> exit({Tag, Fun()}) end,
                            [monitor, {max_heap_size, #{size => ?REFERENCE_MAX_WORDS, kill => true,
                                                        error_logger => false}}]),
     receive
         {'DOWN', Mon, process, Pid, {Tag, Result}} -> {ok, Result};
-        {'DOWN', Mon, process, Pid, killed} -> {error, {reference_too_big, ?REFERENCE_MAX_WORDS}}
+        {'DOWN', Mon, process, Pid, killed} -> {error, too_big};
+        {'DOWN', Mon, process, Pid, Reason} -> {error, {crashed, Reason}}
     after ?REFERENCE_MAX_MS ->
         exit(Pid, kill),
         receive {'DOWN', Mon, process, Pid, _} -> ok end,
-        {error, {reference_too_slow, ?REFERENCE_MAX_MS}}
+        {error, too_slow}
     end.
 
 %% A property over random scenes records in Table (a public ETS table) a

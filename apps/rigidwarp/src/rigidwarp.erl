@@ -351,6 +351,8 @@ run_scene(Scene, Opts) ->
 
 %% @doc One line for any error of run/2 and run_scene/2.
 -spec format_error(error_reason()) -> string().
+format_error({crashed, Who, {{too_many_cells, Message}, _Stack}}) ->
+    lists:flatten(io_lib:format("the simulation crashed past its restart budget: ~0p died: ~ts", [Who, Message]));
 format_error({crashed, Who, Reason}) ->
     lists:flatten(io_lib:format("the simulation crashed past its restart budget: ~0p died: ~0P", [Who, Reason, 12]));
 format_error({interrupted, Signal, undefined}) ->
@@ -446,6 +448,7 @@ run_engine(timewarp, Scene, From, Opts) ->
 
 failure({crashed, _, _} = Crash) -> Crash;
 failure({interrupted, _, _} = Interrupt) -> Interrupt;
+failure({raised, error, {too_many_cells, Message}, _Stack}) -> "the run stopped: " ++ Message;
 failure({raised, Class, Reason, Stack}) ->
     lists:flatten(io_lib:format("the run stopped: ~p:~0P in ~0P", [Class, Reason, 12, Stack, 8]));
 failure({schedulers, Message}) -> Message;

@@ -5,8 +5,11 @@
 %% order, the order in which the buckets are locked (Lemma 1).
 -module(rw_tvht_plan).
 -include("rigidwarp.hrl").
--export([write/7, write/8, for_bucket/2, first_contacts/2, delete/1, grid/1, on_grid/2]).
+-export([write/7, write/8, for_bucket/2, first_contacts/2, delete/1, grid/1, on_grid/2, max_write_cells/0]).
 -export_type([plan/0, where/0, cache/0]).
+
+%% The most cells one member's write may cover (max_write_cells/0).
+-define(MAX_WRITE_CELLS, 262144).
 
 %% Per bucket index, ascending: the cells written and the spans in them.
 -type plan() :: [{non_neg_integer(), [rw_hash:cell()], [rw_cells:span()]}].
@@ -297,11 +300,24 @@ add_run(none, _Ta, _Tb, Acc) -> Acc;
 add_run(Box, Ta, Tb, Acc) -> add_cells(rw_hash:box_cells(Box), Ta, Tb, Acc).
 
 add_cells(Cells, Ta, Tb, Acc) ->
-    lists:foldl(fun(C, A) -> case A of
-                                 #{C := {First, _}} -> A#{C => {First, Tb}};
-                                 _ -> A#{C => {Ta, Tb}}
-                             end
-                end, Acc, Cells).
+    Spans = lists:foldl(fun(C, A) -> case A of
+                                         #{C := {First, _}} -> A#{C => {First, Tb}};
+                                         _ -> A#{C => {Ta, Tb}}
+                                     end
+                        end, Acc, Cells),
+    map_size(Spans) =< ?MAX_WRITE_CELLS orelse
+        error({too_many_cells,
+               lists:flatten(io_lib:format("a sphere's write to the TVHT covers more than ~b cells, the most a write "
+                                           "may hold: it moves faster than its scene's energy allowed at validation",
+                                           [?MAX_WRITE_CELLS]))}),
+    Spans.
+
+%% The most cells one member's write covers; past it the write raises
+%% error({too_many_cells, Message}). Each cell is a span here and a
+%% segment in its bucket: a lone sphere writing this many took some
+%% 500 MB (its heap and the buckets', as the allocators keep them).
+-spec max_write_cells() -> pos_integer().
+max_write_cells() -> ?MAX_WRITE_CELLS.
 
 %% The box around state I of a step (swept over its substep with CCD).
 aabb(Packed, I, R) ->

@@ -2,7 +2,7 @@
 %% bucket of a pool owns a cell. Cells are unbounded (bignums far away).
 -module(rw_hash).
 -export([cells/2, swept_cells/4, cut/1, cell_of/2, bucket/2, box/2, box_cells/1, box_size/1, region/2, no_region/0,
-         in_region/2]).
+         in_region/2, max_swept_cells/0, sweep_bound/4]).
 -export_type([cell/0, box/0, region/0, extent/0]).
 
 -type cell() :: {integer(), integer(), integer()}.
@@ -21,6 +21,15 @@
 %% A swept sphere whose box holds more cells than this is covered by the
 %% boxes of pieces of its move instead (swept_cells/4).
 -define(FEW_CELLS, 27).
+
+%% The most cells swept_cells/4 lists for one sphere and substep: the
+%% reference lists them all at every substep (a few MB at this cap). The
+%% Time Warp engine keeps a stride of substeps in one write and bounds
+%% writes apart (rw_tvht_plan:max_write_cells/0). The fastest sweeps of
+%% the tests and benchmarks (5 km/s in 16 ms substeps, 17 km/s in 1 ms,
+%% across the reference's cells of 0.1 m) are bounded by some 56,000 and
+%% 12,000 at validation (rw_scene_limits).
+-define(MAX_SWEPT_CELLS, 65536).
 
 %% Every cell of side CellSize that the extent touches, in lexicographic
 %% order (the order in which the TVHT locks them, Lemma 1): a box's cells,
@@ -42,14 +51,21 @@ cut(Box) -> box_size(Box) > ?FEW_CELLS.
 %% the pieces' as its length. A sphere touches nothing at any point of its
 %% move outside the cells of the piece it is on, so two swept spheres that
 %% touch share a cell of both covers, as they share one of both boxes.
+%% The pieces' cells are counted before any is listed: past
+%% max_swept_cells/0 the sweep raises error({too_many_cells, Message}).
 -spec swept_cells(rw_vec:vec(), rw_vec:vec(), float(), float()) -> [cell()].
 swept_cells({X, Y, Z} = P, {DX, DY, DZ} = D, R, S) ->
     {X0, X1, Y0, Y1, Z0, Z1} = Box = box(rw_shape:swept_aabb(P, D, R), S),
     case cut(Box) of
         false -> box_cells(Box);
         true ->
-            K = trunc(rw_vec:max_abs(D) / max(S, 2.0 * R)) + 1,
-            Pad = R + 1.0e-12 * (rw_vec:max_abs(P) + rw_vec:max_abs(D) + R),
+            Step = max(S, 2.0 * R),
+            Move = rw_vec:max_abs(D),
+            %% every piece holds a cell: too many pieces are refused
+            %% before they are counted
+            Move =< Step * ?MAX_SWEPT_CELLS orelse too_many(R, Move, S),
+            K = trunc(Move / Step) + 1,
+            Pad = pad(rw_vec:max_abs(P), Move, R),
             At = fun(I) when I =:= K -> {X + DX, Y + DY, Z + DZ};
                     (I) -> F = I / K, {X + DX * F, Y + DY * F, Z + DZ * F}
                  end,
@@ -59,11 +75,47 @@ swept_cells({X, Y, Z} = P, {DX, DY, DZ} = D, R, S) ->
                               box({{min(A0, A1) - Pad, min(B0, B1) - Pad, min(C0, C1) - Pad},
                                    {max(A0, A1) + Pad, max(B0, B1) + Pad, max(C0, C1) + Pad}}, S),
                           %% (within the swept box: the cover stays a part of it)
-                          box_cells({max(PX0, X0), min(PX1, X1), max(PY0, Y0), min(PY1, Y1),
-                                     max(PZ0, Z0), min(PZ1, Z1)})
+                          {max(PX0, X0), min(PX1, X1), max(PY0, Y0), min(PY1, Y1), max(PZ0, Z0), min(PZ1, Z1)}
                       end || I <- lists:seq(0, K - 1)],
-            lists:usort(lists:append(Pieces))
+            Count = lists:foldl(fun(B, N) -> N + box_size(B) end, 0, Pieces),
+            Count =< ?MAX_SWEPT_CELLS orelse too_many(R, Move, S),
+            lists:usort(lists:append([box_cells(B) || B <- Pieces]))
     end.
+
+%% How far beyond a piece of a move its box reaches: the radius, and far
+%% above the rounding of the points that cut the move (Far and Move are the
+%% largest coordinate of the start and of the move).
+pad(Far, Move, R) -> R + 1.0e-12 * (Far + Move + R).
+
+%% A sweep that would list more cells than the cap: validation
+%% (rw_scene_limits) keeps every body's speed below what reaches it, so
+%% only a run whose physics gains energy gets here.
+-spec too_many(float(), float(), float()) -> no_return().
+too_many(R, Move, S) ->
+    error({too_many_cells,
+           lists:flatten(io_lib:format("a sphere of radius ~s m moving ~s m along an axis in one substep sweeps "
+                                       "more than ~b cells of ~s m, the most a sweep may list: it moves faster "
+                                       "than its scene's energy allowed at validation",
+                                       [short(R), short(Move), ?MAX_SWEPT_CELLS, short(S)]))}).
+
+short(X) -> float_to_list(X, [short]).
+
+%% The most cells swept_cells/4 lists for one sphere and substep; a sweep
+%% past it raises error({too_many_cells, Message}).
+-spec max_swept_cells() -> pos_integer().
+max_swept_cells() -> ?MAX_SWEPT_CELLS.
+
+%% An upper bound on the cells swept_cells/4 lists (before it drops those
+%% listed twice) for a sphere of radius R whose centre starts at most Far
+%% from the origin along every axis and moves at most Move along each, in
+%% cells of side S: the pieces, each at most a step (a cell or a diameter)
+%% long, times the cells of a piece's box, per axis at most its length
+%% over S plus two, and one more for the rounding of coordinates far out.
+-spec sweep_bound(float(), float(), float(), float()) -> float().
+sweep_bound(Move, R, S, Far) ->
+    Step = max(S, 2.0 * R),
+    PerAxis = (Step + 2.0 * pad(Far, Move, R)) / S + 2.0 + 1.0e-15 * (Far + Move) / S,
+    (Move / Step + 1.0) * PerAxis * PerAxis * PerAxis.
 
 -spec box(rw_shape:aabb(), float()) -> box().
 box({{X0, Y0, Z0}, {X1, Y1, Z1}}, S) ->
