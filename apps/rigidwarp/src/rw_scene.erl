@@ -62,6 +62,9 @@
 %% scenes around +-1e9 m, near enough that squared distances stay finite.
 -define(MAX_ABS, 1.0e12).
 -define(MAX_FILE_BYTES, 64 * 1024 * 1024).
+%% The smallest squared length of a direction (from the shortest one,
+%% 1e-150, whose square is still far above the denormal doubles).
+-define(MIN_LEN2, 1.0e-300).
 
 %% @doc The largest magnitude a coordinate, speed or size may have.
 -spec max_abs() -> float().
@@ -94,7 +97,7 @@ from_binary(Bin, Opts) ->
     File = maps:get(file, Opts, undefined),
     case decode(Bin) of
         {ok, Map} -> from_map(Map, Opts);
-        {error, Msg} -> {error, {scene_error, File, [], Msg}}
+        {error, Path, Msg} -> {error, {scene_error, File, Path, Msg}}
     end.
 
 %% @doc Validate a scene from its decoded JSON (maps with binary keys).
@@ -119,27 +122,47 @@ format_error({scene_error, File, Path, Msg}) ->
 
 decode(Bin) ->
     case blank(Bin) of
-        true -> {error, "the file is empty (a scene is a JSON object)"};
+        true -> {error, [], "the file is empty (a scene is a JSON object)"};
         false -> decode_json(Bin)
     end.
 
 blank(<<C, Rest/binary>>) when C =:= $\s; C =:= $\t; C =:= $\r; C =:= $\n -> blank(Rest);
 blank(Bin) -> Bin =:= <<>>.
 
+%% Objects are decoded as lists of pairs, which keep a key given twice
+%% (maps would keep one of them silently), and made maps once no object
+%% has one.
 decode_json(Bin) ->
-    try jiffy:decode(Bin, [return_maps, dedupe_keys]) of
-        Map when is_map(Map) -> {ok, Map};
-        _ -> {error, "a scene must be a JSON object"}
+    try jiffy:decode(Bin, []) of
+        {Pairs} = Object when is_list(Pairs) ->
+            try {ok, to_maps(Object, [])}
+            catch throw:{duplicate_key, Path} -> {error, Path, "duplicate key (a key may appear once in an object)"}
+            end;
+        _ -> {error, [], "a scene must be a JSON object"}
     catch
         error:{Pos, truncated_json} when is_integer(Pos) ->
-            {error, "invalid JSON: the text ends early"};
+            {error, [], "invalid JSON: the text ends early"};
         error:{Pos, _Reason} when is_integer(Pos) ->
-            {error, json_error_at(Bin, Pos)};
+            {error, [], json_error_at(Bin, Pos)};
         error:{range, _} ->
-            {error, "invalid JSON: a number is too large for a double"};
+            {error, [], "invalid JSON: a number is too large for a double"};
         error:_ ->
-            {error, "invalid JSON"}
+            {error, [], "invalid JSON"}
     end.
+
+%% Decoded JSON with objects as maps; a key given twice in an object
+%% throws {duplicate_key, Path}, its second place.
+to_maps({Pairs}, Path) when is_list(Pairs) ->
+    lists:foldl(fun({K, V}, Map) ->
+                        case is_map_key(K, Map) of
+                            true -> throw({duplicate_key, Path ++ [K]});
+                            false -> Map#{K => to_maps(V, Path ++ [K])}
+                        end
+                end, #{}, Pairs);
+to_maps(List, Path) when is_list(List) ->
+    {Items, _} = lists:mapfoldl(fun(V, I) -> {to_maps(V, Path ++ [I]), I + 1} end, 0, List),
+    Items;
+to_maps(Value, _Path) -> Value.
 
 %% Where jiffy stopped, as a person counts: line, column and the character.
 json_error_at(Bin, Pos) ->
@@ -205,6 +228,11 @@ build(Map, Overrides, File) ->
                    %% ones put more bodies in each
                    error -> 5.0 * MaxR
                end,
+    %% before anything lists the cells of a sphere
+    case rw_scene_limits:check(Spheres, CellSize, Model, {Duration / 1.0e6, min(Stride, Duration) div Substep}) of
+        ok -> ok;
+        {error, Path, Msg} -> throw({invalid, Path, Msg})
+    end,
     no_overlaps(Spheres, Fixtures, CellSize),
     Buckets = override(buckets, Overrides,
                        fun() -> case maps:is_key(<<"buckets">>, Map) of
@@ -361,7 +389,7 @@ body(B, P) ->
             St = #st{p = vec(B, <<"position">>, P),
                      v = vec(B, <<"velocity">>, P, rw_vec:zero()),
                      w = vec(B, <<"angular_velocity">>, P, undefined)},
-            {sphere, Id, positive(B, <<"radius">>, P), positive(B, <<"mass">>, P), St, P};
+            {sphere, Id, radius(B, P), mass(B, P), St, P};
         _ when Shape =:= <<"cylinder">>; Shape =:= <<"plane">>; Shape =:= <<"box">> ->
             Static orelse invalid(P ++ [<<"static">>], "a ~s must be static (only spheres move)", [Shape]),
             {fixture, Id, static_shape(Shape, B, P), P};
@@ -474,8 +502,8 @@ grid(G, P) ->
     N =< ?MAX_GENERATED orelse invalid(P ++ [<<"count">>], "more than ~b spheres", [?MAX_GENERATED]),
     Origin = vec(G, <<"origin">>, P, rw_vec:zero()),
     {SX, SY, SZ} = vec(G, <<"spacing">>, P),
-    R = positive(G, <<"radius">>, P),
-    M = positive(G, <<"mass">>, P),
+    R = radius(G, P),
+    M = mass(G, P),
     V = vec(G, <<"velocity">>, P, rw_vec:zero()),
     Width = length(integer_to_list(max(N - 1, 0))),
     Points = [rw_vec:add(Origin, {I * SX, J * SY, K * SZ})
@@ -491,8 +519,8 @@ random_spheres(G, P) ->
     Seed = non_neg_int(G, <<"seed">>, P, 1),
     Lo = vec(G, <<"min">>, P),
     Hi = vec(G, <<"max">>, P),
-    R = positive(G, <<"radius">>, P),
-    M = positive(G, <<"mass">>, P),
+    R = radius(G, P),
+    M = mass(G, P),
     Speed = non_negative(G, <<"speed">>, P, 0.0),
     V0 = vec(G, <<"velocity">>, P, rw_vec:zero()),
     [invalid(P ++ [<<"max">>], "the region must be wider than a sphere (2 * radius) on every axis", [])
@@ -630,6 +658,18 @@ positive(M, K, P) ->
         X -> invalid(P ++ [K], "must be positive, got ~p", [X])
     end.
 
+%% A sphere's radius and mass: positive, and within rw_scene_limits' ranges.
+radius(M, P) -> ranged(M, <<"radius">>, P, fun rw_scene_limits:radius/1).
+
+mass(M, P) -> ranged(M, <<"mass">>, P, fun rw_scene_limits:mass/1).
+
+ranged(M, K, P, Check) ->
+    X = positive(M, K, P),
+    case Check(X) of
+        ok -> X;
+        {error, Msg} -> throw({invalid, P ++ [K], Msg})
+    end.
+
 non_negative(M, K, P) -> non_negative(M, K, P, required).
 non_negative(M, K, P, Default) ->
     case number(M, K, P, Default) of
@@ -651,11 +691,24 @@ vec(M, K, P, Default) ->
         X -> invalid(P ++ [K], "must be an array of 3 numbers, got ~s", [describe(X)])
     end.
 
+%% A direction, normalised. A vector whose squared length is far down
+%% among the smallest doubles has no direction that normalising can find:
+%% it is refused as degenerate, not taken as the short vector it stays.
 unit_vec(M, K, P, Default) ->
     case vec(M, K, P, Default) of
         {0.0, 0.0, 0.0} -> invalid(P ++ [K], "must not be the zero vector", []);
-        V -> rw_vec:norm(V)
+        V ->
+            case rw_vec:len2(V) >= ?MIN_LEN2 of
+                true -> rw_vec:norm(V);
+                false -> invalid(P ++ [K], "is degenerate: its length ~s is below 1.0e-150, too small to normalise, "
+                                 "got ~s", [float_to_list(length_of(V), [short]), describe(tuple_to_list(V))])
+            end
     end.
+
+%% The length of a vector however short, without squaring it into zero.
+length_of({X, Y, Z} = V) ->
+    Largest = rw_vec:max_abs(V),
+    Largest * rw_vec:len({X / Largest, Y / Largest, Z / Largest}).
 
 -spec invalid(path(), string(), [term()]) -> no_return().
 invalid(Path, Fmt, Args) -> throw({invalid, Path, fmt(Fmt, Args)}).

@@ -163,3 +163,84 @@ zero_gravity_is_no_gravity_test() ->
         rw_scene:from_map((base())#{<<"model">> => #{<<"gravity">> => [0, -10, 0]}}, #{}),
     ?assertBitwise({0.0, -10.0, 0.0}, G),
     ?assert(abs(RS - 0.02) < 1.0e-12).
+
+%%% Limits (rw_scene_limits): what would overflow or list cells without end
+
+limits_test_() ->
+    Gen = fun(R, M) -> (base())#{<<"generators">> => [#{<<"type">> => <<"grid">>, <<"id_prefix">> => <<"g">>,
+                                                         <<"count">> => [1, 1, 1], <<"origin">> => [0, 5, 0],
+                                                         <<"spacing">> => [1, 1, 1], <<"radius">> => R,
+                                                         <<"mass">> => M}]} end,
+    Axis = fun(A) -> (base())#{<<"bodies">> => [#{<<"id">> => <<"c">>, <<"shape">> => <<"cylinder">>, <<"radius">> => 1,
+                                                   <<"half_length">> => 1, <<"axis">> => A, <<"position">> => [0, 9, 0]},
+                                                 sphere(<<"a">>, [0, 0, 0])]} end,
+    Fast = fun(V, Model) -> (set_body(0, <<"velocity">>, [V, 0, 0]))#{<<"model">> => Model} end,
+    Cases = [{set_body(0, <<"radius">>, 1.0e-10), "$.bodies[0].radius: must be from 1.0e-9 to 1.0e12 m"},
+             {set_body(0, <<"mass">>, 1.0e-21), "$.bodies[0].mass: must be from 1.0e-20 to 1.0e12 kg"},
+             {Gen(1.0e-10, 1), "$.generators[0].radius: must be from 1.0e-9"},
+             {Gen(0.5, 1.0e-300), "$.generators[0].mass: must be from 1.0e-20"},
+             {Axis([1.0e-200, 0, 0]), "$.bodies[0].axis: is degenerate: its length 1.0e-200 is below 1.0e-150"},
+             {(base())#{<<"cell_size">> => 0.5 / 8.5}, "$.cell_size: must be at least 1/8 of the largest radius (0.0625 m here)"},
+             %% a's energy may all go to b (equal masses: the same bound);
+             %% 1e6 m/s with CCD sweeps past the caps, 1e4 m/s does not
+             {Fast(1.0e6, #{<<"ccd">> => true}), "$.bodies[1]: with CCD, sphere b could reach 1.1e6 m/s"},
+             {Fast(1.0e6, #{<<"ccd">> => true, <<"gravity">> => [0, -9.81, 0]}),
+              "(all of the scene's kinetic energy in it, and what gravity adds over 0.1 s)"}],
+    [{Expected, ?_assertMatch({match, _}, re:run(error_of(Map), "\\Q" ++ Expected ++ "\\E"))}
+     || {Map, Expected} <- Cases]
+        ++ [?_assertEqual("", error_of(Map)) || Map <- [(base())#{<<"cell_size">> => 0.5 / 8}, Gen(1.0e-9, 1.0e-20),
+                                                        Axis([1.0e-150, 0, 0]), Fast(1.0e6, #{}),
+                                                        Fast(1.0e4, #{<<"ccd">> => true})]].
+
+%% A key given twice is refused where it is given the second time, at any
+%% depth; without one, the scene is the one a map decoding gives, for
+%% every bundled scene.
+duplicate_keys_test_() ->
+    Dup = fun(Json) ->
+                  {error, E} = rw_scene:from_binary(Json, #{}),
+                  rw_scene:format_error(E)
+          end,
+    Same = fun(File) ->
+                   {ok, Bin} = file:read_file(File),
+                   {ok, FromText} = rw_scene:from_binary(Bin, #{}),
+                   {ok, FromMap} = rw_scene:from_map(jiffy:decode(Bin, [return_maps]), #{}),
+                   ?assertBitwise(FromMap, FromText)
+           end,
+    Scenes = filelib:wildcard(filename:join([rw_test_lib:root(), "scenarios", "*.json"])),
+    [?_assertEqual("$.model.ccd: duplicate key (a key may appear once in an object)",
+                   Dup(<<"{\"name\":\"t\",\"model\":{\"ccd\":true,\"ccd\":false},\"duration_ms\":1}">>)),
+     ?_assertEqual("$.generators[1].radius: duplicate key (a key may appear once in an object)",
+                   Dup(<<"{\"generators\":[{},{\"radius\":1,\"mass\":1,\"radius\":2}]}">>)),
+     ?_assertEqual("$.name: duplicate key (a key may appear once in an object)",
+                   Dup(<<"{\"name\":\"t\",\"name\":\"t\"}">>)),
+     ?_assert(length(Scenes) >= 20)
+     | [?_test(Same(F)) || F <- Scenes]].
+
+%% The speed bound holds where a heavy ball hands its fall to a light one
+%% above it: dropped together 1 m onto a floor (restitution 1), the heavy
+%% one bounces back into the light one, which leaves at some 3 x 4.4 m/s
+%% at 0.45 s, far above what gravity alone gives by then (g t); the bound
+%% counts every fall's energy as the light one's.
+speed_bound_holds_when_a_fall_moves_to_a_lighter_sphere_test() ->
+    Floor = #{<<"id">> => <<"floor">>, <<"shape">> => <<"plane">>, <<"normal">> => [0, 1, 0], <<"offset">> => 0},
+    Light = (sphere(<<"light">>, [0, 2.1001, 0]))#{<<"radius">> => 0.1},
+    Heavy = (sphere(<<"heavy">>, [0, 1.5, 0]))#{<<"mass">> => 100.0},
+    {ok, #scene{spheres = Spheres, initial = Initial, model = Model} = Scene} =
+        rw_scene:from_map(#{<<"name">> => <<"t">>, <<"duration_ms">> => 500, <<"frame_ms">> => 1,
+                            <<"model">> => #{<<"gravity">> => [0, -9.81, 0], <<"restitution">> => 1.0},
+                            <<"bodies">> => [Floor, Light, Heavy]}, #{}),
+    [HeavyBound, LightBound] = rw_scene_limits:speed_bounds([{S, St, []} || {S, St} <- lists:zip(Spheres, Initial)],
+                                                            Model, 0.5),
+    Self = self(),
+    {ok, _} = rw_reference:run(Scene, #{on_frame => fun(F) -> Self ! {frame, F} end}),
+    Fastest = lists:max(fastest_light(Self)),
+    ?assert(Fastest > 2.0 * 9.81 * 0.5),
+    ?assert(Fastest =< LightBound),
+    ?assert(HeavyBound < LightBound).
+
+fastest_light(_Self) ->
+    receive {frame, {frame, _, Bodies}} ->
+            {_, _, V, _, _} = lists:keyfind(<<"light">>, 1, Bodies),
+            [rw_vec:len(V) | fastest_light(_Self)]
+    after 0 -> []
+    end.
