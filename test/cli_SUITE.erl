@@ -8,7 +8,7 @@
 -export([bench_machine/1, bench_parallelism/1, bench_scale/1, bench_scale_rounds/1]).
 -export([nodes_flags/1,
          help/1, validate_every_scenario/1, summary_is_last_line/1, frames_file/1,
-         bad_flags_exit_2/1, integrator_and_ccd_flags/1, groups_flags/1, bad_scene_exit_2/1, scenes_lists_bundled/1,
+         bad_flags_exit_2/1, impossible_run_refused_at_once/1, integrator_and_ccd_flags/1, groups_flags/1, bad_scene_exit_2/1, scenes_lists_bundled/1,
          bad_input_corpus/1,
          generated_bad_inputs/1, progress_line/1, snapshot_png/1, shell_api_rejects_bad_arguments/1,
          summary_key_order/1, version/1, scene_names/1, frames_must_match_scene/1, live_view_reports/1]).
@@ -17,7 +17,7 @@ suite() -> [{timetrap, {minutes, 5}}].
 
 all() -> [help, version, validate_every_scenario, summary_is_last_line, frames_file, integrator_and_ccd_flags, groups_flags,
           nodes_flags,
-          bad_flags_exit_2,
+          bad_flags_exit_2, impossible_run_refused_at_once,
           bad_scene_exit_2, scene_names, scenes_lists_bundled, bad_input_corpus, generated_bad_inputs, progress_line,
           snapshot_png, frames_must_match_scene, live_view_reports, shell_api_rejects_bad_arguments, summary_key_order, bench_machine,
           bench_parallelism, bench_scale, bench_scale_rounds].
@@ -259,6 +259,30 @@ bad_flags_exit_2(_Config) ->
          ?assertMatch([_], binary:split(string:trim(Err), <<"\n">>, [global])),
          ?assertMatch({match, _}, re:run(Err, "\\Q" ++ Expect ++ "\\E"))
      end || {Args, Expect} <- Cases],
+    ok.
+
+%% More buckets than the VM has processes for, and an empty frames path:
+%% refused before anything starts (exit 2 within seconds, one line), and
+%% nothing is written where the run was started.
+impossible_run_refused_at_once(Config) ->
+    Scene = rw_test_lib:scenario("head_on_elastic.json"),
+    Cases = [{"buckets", ["--buckets", "300000", "--frames", "f.jsonl"],
+              "rigidwarp: bad value for option buckets: 300000 buckets and 2 bodies need 300002 processes, more than "
+              "this VM's process limit of"},
+             {"frames", ["--frames", ""], "rigidwarp: cannot write frames to an empty path"}],
+    [begin
+         Cwd = filename:join(?config(priv_dir, Config), Name),
+         ok = file:make_dir(Cwd),
+         T0 = erlang:monotonic_time(millisecond),
+         {Code, Out, Err} = run_escript_in(Cwd, ["run", Scene | Flags], 30),
+         Ms = erlang:monotonic_time(millisecond) - T0,
+         ct:log("~p -> ~b in ~b ms~n~s", [Flags, Code, Ms, Err]),
+         ?assertEqual({2, <<>>}, {Code, Out}),
+         ?assertMatch([_], binary:split(string:trim(Err), <<"\n">>, [global])),
+         ?assertMatch({match, _}, re:run(Err, "^\\Q" ++ Expect ++ "\\E")),
+         ?assert(Ms < 10000),
+         ?assertEqual({ok, []}, file:list_dir(Cwd))
+     end || {Name, Flags, Expect} <- Cases],
     ok.
 
 bad_scene_exit_2(Config) ->
@@ -562,6 +586,11 @@ shell_api_rejects_bad_arguments(_Config) ->
              {fun() -> rigidwarp:run(Scene, not_a_map) end, "options must be a map"},
              {fun() -> rigidwarp:start(Scene, #{engine => reference}) end, "timewarp engine only"},
              {fun() -> rigidwarp:start("/nonexistent.json", #{}) end, "cannot read file"},
+             {fun() -> rigidwarp:run(Scene, #{buckets => 300000}) end,
+              "bad value for option buckets: 300000 buckets and 2 bodies need 300002 processes"},
+             {fun() -> rigidwarp:start(Scene, #{buckets => 300000}) end,
+              "bad value for option buckets: 300000 buckets and 2 bodies need 300002 processes"},
+             {fun() -> rigidwarp:run(Scene, #{frames => ""}) end, "cannot write frames to an empty path"},
              {fun() -> rigidwarp:frames(not_a_sim) end, "not a simulation"},
              {fun() -> rigidwarp:stats(#{}) end, "not a simulation"}],
     [begin

@@ -300,7 +300,11 @@ load(File, Opts) ->
             {error, lists:flatten(io_lib:format("the scene file must be a string (a path), got ~0p", [File]))};
         ok ->
             case rw_scene:load(File, overrides(Opts)) of
-                {ok, Scene} -> {ok, Scene};
+                {ok, Scene} ->
+                    case check_processes(Scene, Opts) of
+                        ok -> {ok, Scene};
+                        {error, _} = Error -> Error
+                    end;
                 {error, E} -> {error, rw_scene:format_error(E)}
             end;
         {error, _} = Error ->
@@ -505,6 +509,20 @@ valid(path, V) -> is_list(V) orelse is_binary(V);
 valid(callback, V) -> is_function(V, 1);
 valid(nodes, V) -> rw_nodes:check(V) =:= ok;
 valid({one_of, Atoms}, V) -> lists:member(V, Atoms).
+
+%% A Time Warp run's bucket and body processes within the VM's process
+%% limit (beyond it the run would start and then fail with system_limit).
+check_processes(#scene{spheres = Spheres, buckets = SceneBuckets, file = File}, Opts) ->
+    %% (64: rw_run's default)
+    Buckets = maps:get(buckets, Opts, case SceneBuckets of undefined -> 64; _ -> SceneBuckets end),
+    Fits = rw_scene_limits:buckets(Buckets, length(Spheres), erlang:system_info(process_limit),
+                                   erlang:system_info(process_count)),
+    case maps:get(engine, Opts, timewarp) =:= timewarp andalso Fits of
+        {error, Msg} when is_map_key(buckets, Opts) -> {error, "bad value for option buckets: " ++ Msg};
+        {error, Msg} when File =:= undefined -> {error, "$.buckets: " ++ Msg};
+        {error, Msg} -> {error, File ++ ": $.buckets: " ++ Msg};
+        _ -> ok
+    end.
 
 overrides(Opts) ->
     maps:from_list([{Scene, V} || {Opt, Scene} <- [{until, duration_ms}, {substep, substep_ms},

@@ -149,6 +149,9 @@ side_file(Path, Side, Resume) ->
 
 %% stdout | {in_place, Info} | {part, Target, Info | missing} | {error, Msg}
 classify("-") -> stdout;
+%% (an empty name would be read as the current directory's TARGET.part,
+%% "./.part", and renamed to nothing at the end)
+classify("") -> {error, "cannot write frames to an empty path: name a file, or - for standard output"};
 classify(Path) ->
     case final_target(Path) of
         {error, _} = Error -> Error;
