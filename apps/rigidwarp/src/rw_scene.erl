@@ -29,8 +29,13 @@
 %% <li>`cell_size' (the hash cell edge, default 5 times the largest radius)
 %%     and `buckets' (bucket processes, default 64).</li>
 %% </ul>
-%% Unknown keys, wrong types, numbers above 1e12 in magnitude, duplicate
-%% ids and bodies that overlap at the start are refused.
+%% Unknown keys, keys given twice in an object, wrong types, numbers above
+%% 1e12 in magnitude, duplicate ids and bodies that overlap at the start
+%% are refused, and so is what the engines cannot hold
+%% (`rw_scene_limits'): radii below 1e-9 m and masses below 1e-20
+%% kg, a `cell_size' below an eighth of the largest radius, cell indices
+%% beyond 2^53, and with CCD speeds whose sweeps would list too many
+%% cells.
 %%
 %% ```
 %% {"name": "two_balls", "duration_ms": 2000, "substep_ms": 1, "frame_ms": 10,

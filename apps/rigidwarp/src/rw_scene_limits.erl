@@ -89,7 +89,10 @@ first([Check | Rest]) ->
 %% v <= sqrt(2 E / m) + g t sqrt(M / m). (One body: its speed plus g t. A
 %% light ball on a heavy one, both falling, can leave faster than g t:
 %% sqrt(M / m) says how much.) Raised by a tenth, and by a substep's
-%% gravity, for rounding and for the energy explicit Euler adds.
+%% gravity, for rounding, for the energy explicit Euler adds, and for the
+%% little that impulses summed at a substep where a sphere meets two
+%% others can add; physics that gains more (a run away) meets the caps of
+%% rw_hash and rw_tvht_plan at run time, which stop the run.
 -spec speed_bounds([sphere_at()], #model{}, float()) -> [float()].
 speed_bounds(Spheres, #model{gravity = Gravity, dt = Dt}, Seconds) ->
     Energy = lists:sum([kinetic(S, St) || {S, St, _} <- Spheres]),
