@@ -33,7 +33,7 @@
 %% node it goes without them (rw_sim:portable/1), and the site there puts
 %% in its own (rw_sim:for_site/4).
 -record(sim, {
-    scene :: #scene{},
+    scene :: #scene{},                        % its stride the one the engine runs with (rw_sim:new/5)
     n :: non_neg_integer(),                   % dynamic bodies (of this node's site, on several nodes)
     end_t :: non_neg_integer(),               % ticks
     sync :: rw_sync:calendar(),               % sync points, regroup points

@@ -18,6 +18,8 @@
                      regroup_every => pos_integer(), grouping => persistent | eager,
                      profile => boolean(), delay => {Seed :: integer(), MaxMs :: non_neg_integer()},
                      read_frames => boolean(),
+                     %% the memory the run's speculative history may take (rw_speculation)
+                     speculation_mb => pos_integer(),
                      trace => ets:tid(),
                      atom() => term()}.
 
@@ -28,10 +30,15 @@
 %% The LVT of a body on another node, as this node's bodies read it.
 -define(NOT_HERE, 16#FFFFFFFFFFFFFFFF).
 
+%% The context's scene is the one the engine runs: its stride is the
+%% scene's, or shorter where the scene's would take more memory than the
+%% run's budget for speculation (rw_speculation).
 -spec new(#scene{}, tables(), tuple(), rw_stats:counters(), options()) -> #sim{}.
-new(#scene{spheres = Spheres, duration = End, frame = Frame, stride = Stride, start = Start, substep = Dt} = Scene,
+new(#scene{spheres = Spheres, duration = End, frame = Frame, stride = Asked, start = Start, substep = Dt} = Scene0,
     #{records := Records, counts := Counts, ring := Ring, owners := Owners, procs := Procs, met := Met},
     Buckets, Stats, Opts) ->
+    Stride = rw_speculation:stride(rw_speculation:budget_bytes(Opts), length(Spheres), Dt, Asked),
+    Scene = Scene0#scene{stride = Stride},
     Kept = records_kept(Scene, Opts),
     SyncEvery = sync_every(Kept =:= sparse, Scene),
     Period = case {maps:get(groups, Opts, true), maps:find(regroup_every, Opts)} of
