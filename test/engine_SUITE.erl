@@ -18,7 +18,7 @@
 -export([scenarios_equal/1, contact_scenes_equal/1, strides_and_buckets_equal/1, throttled_runs_equal/1,
          random_scenes_equal/1,
          random_delays_terminate_and_equal/1, watchdog_names_stuck_body/1,
-         no_leaks_after_100_runs/1, escript_frames_identical/1, frames_api/1, frame_times_only/1, ring_keeps_last_frames/1,
+         memory_stays_bounded/1, no_leaks_after_100_runs/1, escript_frames_identical/1, frames_api/1, frame_times_only/1, ring_keeps_last_frames/1,
          contact_groups/1, crashes_restart_from_checkpoint/1, stats_tell_the_truth/1, traced_run/1]).
 
 suite() -> [{timetrap, {minutes, 15}}].
@@ -29,7 +29,7 @@ groups() ->
     [{equality, [], [scenarios_equal, contact_scenes_equal, strides_and_buckets_equal, throttled_runs_equal,
                      random_scenes_equal, escript_frames_identical, contact_groups]},
      {liveness, [], [random_delays_terminate_and_equal, watchdog_names_stuck_body]},
-     {lifecycle, [], [no_leaks_after_100_runs, frames_api, frame_times_only, ring_keeps_last_frames,
+     {lifecycle, [], [memory_stays_bounded, no_leaks_after_100_runs, frames_api, frame_times_only, ring_keeps_last_frames,
                       crashes_restart_from_checkpoint, stats_tell_the_truth, traced_run]}].
 
 init_per_suite(Config) ->
@@ -556,6 +556,48 @@ watchdog_names_stuck_body(_Config) ->
     ok.
 
 %%% Lifecycle
+
+%% A run whose stride would keep gigabytes of history stays within its
+%% memory budget: stack_1000 at a 1 us substep, where the scene's 64 ms
+%% stride is 64,000 substeps a body, falling for 12 ms, the VM's memory
+%% sampled every 20 ms. Under the default budget (1 GiB) it stays below
+%% 1.5 GB; with a budget too large to matter it passes 1.5 GB (the check
+%% can fail), and past 2.5 GB it is stopped.
+memory_stays_bounded(_Config) ->
+    File = rw_test_lib:scenario("stack_1000.json"),
+    Run = fun(Opts) ->
+                  true = erlang:garbage_collect(),
+                  Base = erlang:memory(total),
+                  Self = self(),
+                  Runner = spawn_link(fun() ->
+                                              Self ! {ran, self(), rigidwarp:run(File, Opts#{substep => 0.001, until => 12})}
+                                      end),
+                  {Peak, Result} = peak_memory(Runner, Base),
+                  ct:pal("stack_1000 at 1 us to 12 ms, ~p: VM memory ~.2f GB at the start, ~.2f GB at most; ~P",
+                         [Opts, Base / 1.0e9, Peak / 1.0e9, Result, 30]),
+                  {Peak, Result}
+          end,
+    {Peak, {ok, #{throttled := true, effective_stride_ms := Effective, sim_ms := 12}}} = Run(#{}),
+    ?assert(Effective < 64),
+    ?assert(Peak < 1500000000),
+    {Unbounded, _} = Run(#{speculation_mb => 1 bsl 20}),
+    ?assert(Unbounded > 1500000000),
+    ok.
+
+%% The highest VM memory seen while Runner runs: {Peak, its result}, or
+%% {Peak, stopped} once past 2.5 GB.
+peak_memory(Runner, Peak) ->
+    receive
+        {ran, Runner, Result} -> {Peak, Result}
+    after 20 ->
+            case erlang:memory(total) of
+                M when M > 2500000000 ->
+                    Runner ! {rw_interrupt, sigterm},
+                    receive {ran, Runner, _} -> ok end,
+                    {M, stopped};
+                M -> peak_memory(Runner, max(M, Peak))
+            end
+    end.
 
 no_leaks_after_100_runs(_Config) ->
     File = rw_test_lib:scenario("head_on_elastic.json"),

@@ -102,8 +102,9 @@ options() ->
      {groups, boolean, "step bodies in persistent contact as one entity (default true)"},
      {group_max, count, "the most bodies in one contact group (default 1024)"},
      {speculation_mb, count, "the memory (MiB) the bodies' history past GVT may take: where the stride would need "
-      "more, bodies step ahead of GVT by a shorter one, which stats report as effective_stride_ms and throttled "
-      "(default " ++ integer_to_list(rw_speculation:default_mb()) ++ ")"},
+      "more, bodies step ahead of GVT by a shorter one (effective_stride_ms in stats), and while the run holds "
+      "more they step less far (memory_holds); either makes throttled true (default "
+      ++ integer_to_list(rw_speculation:default_mb()) ++ ")"},
      {watchdog_ms, count, "how long GVT may stand still before the run restarts (default 10000)"},
      {max_restarts, non_neg, "restarts after faults allowed within restart_period_ms (default 5)"},
      {restart_period_ms, count, "the period of the restart budget (default 10000)"},

@@ -446,9 +446,10 @@ stats_of(#r{scene = #scene{spheres = Spheres, substep = Dt, duration = End, stri
          status => case R#r.status of {crashed, _, _} -> crashed; Status -> Status end,
          restarts => R#r.restarted,
          %% the scene's stride, and the one the engine runs with under the
-         %% run's memory budget for speculation (rw_speculation)
+         %% run's memory budget for speculation (rw_speculation); throttled
+         %% also when the memory guard held bodies back
          stride_ms => ms(Asked, R), effective_stride_ms => ms(stride(Sim, Asked), R),
-         throttled => stride(Sim, Asked) < Asked}, R#r{lead = LeadRead}}.
+         throttled => stride(Sim, Asked) < Asked orelse maps:get(memory_holds, Raw) > 0}, R#r{lead = LeadRead}}.
 
 stride(#sim{scene = #scene{stride = Stride}}, _Asked) -> Stride;
 stride(undefined, Asked) -> Asked.

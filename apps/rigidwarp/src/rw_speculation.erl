@@ -10,22 +10,26 @@
 %% one (LVT_ub = GVT + that stride); the stride only changes the schedule,
 %% never the frames, which stay the reference's bit for bit.
 -module(rw_speculation).
--export([stride/4, budget_bytes/1, default_mb/0, bytes_per_body_substep/0]).
+-export([stride/4, sync_stride/2, ahead/5, budget_bytes/1, default_mb/0, bytes_per_body_substep/0]).
 
 %% The budget when the run does not give one.
 -define(DEFAULT_MB, 1024).
 
-%% The memory a run holds per body and per substep of stride, at most.
-%% Measured as the growth of the peak of erlang:memory(total) from a
-%% stride of 128 substeps to one of 1024 (0.1 ms substeps, runs of 600
-%% ms, 2 schedulers, OTP 25), over bodies x 896: Parallel 500 (a free gas,
-%% 48-byte states) 510 bytes with the C library and 131 without it,
-%% Bouncing 500 (a gas with collisions) 280 and 102, Pile 300 (rotation,
-%% 104-byte states) 264 and none measurable. A body keeps up to two
-%% strides of history (it prunes once a stride), and with the C loops a
-%% step leaves its binaries' garbage behind until the body's next
-%% collection, which a body doing little Erlang work seldom has.
--define(BYTES_PER_BODY_SUBSTEP, 512).
+%% The memory a run holds per body and per substep of stride, at most
+%% where its history is what grows: the growth of the peak of
+%% erlang:memory(total) from a stride of 128 substeps to one of 1024 (0.1
+%% ms substeps, runs of 600 ms, 2 schedulers, OTP 25) over bodies x 896,
+%% Parallel 500 (a free gas, 48-byte states) 510 bytes with the C library
+%% and 131 without it, Bouncing 500 (a gas with collisions) 280 and 102,
+%% Pile 300 (rotation, 104-byte states) 264 with it; stack_1000 at a 1 us
+%% substep and a stride of 2097 substeps held 680 bytes a body-substep in
+%% binaries alone as it first stepped. A body keeps up to two strides of
+%% history (it prunes once a stride); with the C loops a step also leaves
+%% its binaries' garbage behind until the body's next collection, which a
+%% body doing little Erlang work seldom has: that grows with the work done
+%% rather than with the stride, and the memory guard has it collected
+%% (rw_memory_guard).
+-define(BYTES_PER_BODY_SUBSTEP, 768).
 
 %% The stride (ticks) that keeps the history of Bodies bodies at substep
 %% Dt within Budget bytes: the scene's Stride where it fits, else the
@@ -35,6 +39,29 @@
 stride(Budget, Bodies, Dt, Stride) ->
     Substeps = Budget div (max(1, Bodies) * ?BYTES_PER_BODY_SUBSTEP),
     max(Dt, min(Stride, Substeps * Dt)).
+
+%% Sync points fall at every multiple of this (ticks) besides the frame
+%% times: the stride, but 512 substeps at most. The memory guard can hold
+%% bodies back only as far as the first sync point after GVT (the bodies
+%% there must reach it), and GVT frees history only there; the scenes'
+%% strides are 64 to 512 substeps, a stride of 64,000 (a 1 us substep)
+%% would leave the guard no say.
+-define(SYNC_SUBSTEPS, 512).
+-spec sync_stride(pos_integer(), pos_integer()) -> pos_integer().
+sync_stride(Stride, Dt) -> min(Stride, ?SYNC_SUBSTEPS * Dt).
+
+%% The memory guard's decision (rw_memory_guard) when the run holds Used
+%% bytes more than at its start and bodies may step Ahead ticks past GVT:
+%% how far they may step from now on, and whether the simulation's
+%% processes are to collect their garbage. Over the budget, half as far
+%% (a whole number of substeps, one at least) and collect; over three
+%% quarters of it, collect; under half of it, twice as far, up to the
+%% stride; in between, as far as before.
+-spec ahead(integer(), pos_integer(), pos_integer(), pos_integer(), pos_integer()) -> {pos_integer(), boolean()}.
+ahead(Used, Budget, Ahead, _Stride, Dt) when Used > Budget -> {max(Dt, Ahead div 2 div Dt * Dt), true};
+ahead(Used, Budget, Ahead, _Stride, _Dt) when 4 * Used > 3 * Budget -> {Ahead, true};
+ahead(Used, Budget, Ahead, Stride, _Dt) when 2 * Used < Budget -> {min(Stride, 2 * Ahead), false};
+ahead(_Used, _Budget, Ahead, _Stride, _Dt) -> {Ahead, false}.
 
 %% The budget in bytes of a run's options (speculation_mb, MiB).
 -spec budget_bytes(#{speculation_mb => pos_integer(), atom() => term()}) -> pos_integer().

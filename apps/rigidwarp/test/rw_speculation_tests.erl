@@ -46,6 +46,33 @@ grid_test() ->
      end || {Budget, N, Dt, Stride} <- Cases],
     ok.
 
+%% Sync points every stride, and every 512 substeps at least.
+sync_stride_test() ->
+    ?assertEqual(64, rw_speculation:sync_stride(64, 1)),
+    ?assertEqual(512, rw_speculation:sync_stride(512, 1)),
+    ?assertEqual(512, rw_speculation:sync_stride(64000, 1)),
+    ?assertEqual(5120, rw_speculation:sync_stride(20970, 10)).
+
+%% The guard: over the budget, half as far (whole substeps, one at least)
+%% and collect; over three quarters, collect; under half of it, twice as
+%% far up to the stride; in between, as before.
+ahead_test() ->
+    Budget = 1000,
+    ?assertEqual({1000, true}, rw_speculation:ahead(1001, Budget, 2000, 2000, 10)),
+    ?assertEqual({990, true}, rw_speculation:ahead(5000, Budget, 1990, 2000, 10)),
+    ?assertEqual({10, true}, rw_speculation:ahead(5000, Budget, 10, 2000, 10)),
+    ?assertEqual({10, true}, rw_speculation:ahead(5000, Budget, 30, 2000, 10)),
+    ?assertEqual({800, true}, rw_speculation:ahead(1000, Budget, 800, 2000, 10)),
+    ?assertEqual({800, true}, rw_speculation:ahead(751, Budget, 800, 2000, 10)),
+    ?assertEqual({800, false}, rw_speculation:ahead(750, Budget, 800, 2000, 10)),
+    ?assertEqual({800, false}, rw_speculation:ahead(500, Budget, 800, 2000, 10)),
+    ?assertEqual({1600, false}, rw_speculation:ahead(499, Budget, 800, 2000, 10)),
+    ?assertEqual({2000, false}, rw_speculation:ahead(0, Budget, 1600, 2000, 10)),
+    ?assertEqual({2000, false}, rw_speculation:ahead(-50, Budget, 2000, 2000, 10)),
+    %% from one substep back to the stride in a few looks
+    Back = lists:foldl(fun(_, A) -> element(1, rw_speculation:ahead(0, Budget, A, 2000, 10)) end, 10, lists:seq(1, 8)),
+    ?assertEqual(2000, Back).
+
 %% The option is in MiB; left out, the default.
 budget_bytes_test() ->
     ?assertEqual(3 * ?MIB, rw_speculation:budget_bytes(#{speculation_mb => 3})),
