@@ -15,9 +15,10 @@
 -export([all/0, groups/0, suite/0, init_per_suite/1, end_per_suite/1]).
 %% the random scenes, for nodes_SUITE
 -export([scene_map/0, pile/0, stride/0, group_options/0, scenario_files/0, until/1]).
--export([scenarios_equal/1, contact_scenes_equal/1, strides_and_buckets_equal/1, random_scenes_equal/1,
+-export([scenarios_equal/1, contact_scenes_equal/1, strides_and_buckets_equal/1, throttled_runs_equal/1,
+         random_scenes_equal/1,
          random_delays_terminate_and_equal/1, watchdog_names_stuck_body/1,
-         no_leaks_after_100_runs/1, escript_frames_identical/1, frames_api/1, frame_times_only/1, ring_keeps_last_frames/1,
+         memory_stays_bounded/1, no_leaks_after_100_runs/1, escript_frames_identical/1, frames_api/1, frame_times_only/1, ring_keeps_last_frames/1,
          contact_groups/1, crashes_restart_from_checkpoint/1, stats_tell_the_truth/1, traced_run/1]).
 
 suite() -> [{timetrap, {minutes, 15}}].
@@ -25,10 +26,10 @@ suite() -> [{timetrap, {minutes, 15}}].
 all() -> [{group, equality}, {group, liveness}, {group, lifecycle}].
 
 groups() ->
-    [{equality, [], [scenarios_equal, contact_scenes_equal, strides_and_buckets_equal, random_scenes_equal,
-                     escript_frames_identical, contact_groups]},
+    [{equality, [], [scenarios_equal, contact_scenes_equal, strides_and_buckets_equal, throttled_runs_equal,
+                     random_scenes_equal, escript_frames_identical, contact_groups]},
      {liveness, [], [random_delays_terminate_and_equal, watchdog_names_stuck_body]},
-     {lifecycle, [], [no_leaks_after_100_runs, frames_api, frame_times_only, ring_keeps_last_frames,
+     {lifecycle, [], [memory_stays_bounded, no_leaks_after_100_runs, frames_api, frame_times_only, ring_keeps_last_frames,
                       crashes_restart_from_checkpoint, stats_tell_the_truth, traced_run]}].
 
 init_per_suite(Config) ->
@@ -191,6 +192,37 @@ strides_and_buckets_equal(_Config) ->
          assert_same(io_lib:format("stride ~b, ~b buckets, ~b schedulers", [Stride, Buckets, S]), Ref, Tw)
      end || {Stride, Buckets, S} <- Configs],
     {comment, io_lib:format("~b configurations", [length(Configs)])}.
+
+%% A run whose memory budget for speculation is too small for its stride
+%% steps ahead of GVT by a shorter one (rw_speculation), says so, and its
+%% frames are still the reference's: a gas with pair and wall contacts
+%% and a pile whose contact groups form, each with a stride of a second
+%% and a budget of 1 MiB, on 1 and 2 schedulers, with groups and without.
+%% A run within its budget keeps its stride.
+throttled_runs_equal(_Config) ->
+    Cases = [{rw_test_lib:scenario("bouncing_200_250.json"), 400}, {rw_test_lib:test_scene("pile_40.json"), 1000}],
+    [begin
+         {ok, #scene{spheres = Spheres, substep = Dt, stride = Stride} = Scene} =
+             rigidwarp:load(File, #{until => Until, stride => 1000}),
+         {Ref, #{pair_contacts := Pairs}} = frames(reference, Scene, #{}),
+         ?assert(Pairs > 0),
+         Effective = rw_speculation:stride(1 bsl 20, length(Spheres), Dt, Stride),
+         ?assert(8 * Effective =< Stride),
+         [begin
+              {Tw, #{throttled := Throttled, stride_ms := StrideMs, effective_stride_ms := EffectiveMs,
+                     events := Events, regroups := Regroups}} =
+                  with_schedulers(S, fun() -> frames(timewarp, Scene, Opts#{speculation_mb => 1}) end),
+              ct:pal("~s on ~b scheduler(s), ~p: stride ~p ms run as ~p ms; ~b frames equal, ~b events, ~b regroups",
+                     [filename:basename(File), S, Opts, StrideMs, EffectiveMs, length(Tw), Events, Regroups]),
+              ?assertEqual({true, 1000, rw_scene:ms(Scene, Effective)}, {Throttled, StrideMs, EffectiveMs}),
+              ?assert(Events > 0),
+              ?assert(maps:is_key(groups, Opts) orelse filename:basename(File) =/= "pile_40.json" orelse Regroups > 0),
+              assert_same(io_lib:format("~s on ~b schedulers, ~p, 1 MiB", [filename:basename(File), S, Opts]), Ref, Tw)
+          end || S <- [1, 2], Opts <- [#{}, #{groups => false}]]
+     end || {File, Until} <- Cases],
+    {_, #{throttled := false, stride_ms := 64, effective_stride_ms := 64}} =
+        frames(timewarp, rw_test_lib:scenario("head_on_elastic.json"), #{until => 100}),
+    ok.
 
 %% Random scenes (scene_map/0) on random strides, bucket counts, scheduler
 %% counts and contact group settings. Afterwards the tally shows that the
@@ -524,6 +556,48 @@ watchdog_names_stuck_body(_Config) ->
     ok.
 
 %%% Lifecycle
+
+%% A run whose stride would keep gigabytes of history stays within its
+%% memory budget: stack_1000 at a 1 us substep, where the scene's 64 ms
+%% stride is 64,000 substeps a body, falling for 12 ms, the VM's memory
+%% sampled every 20 ms. Under the default budget (1 GiB) it stays below
+%% 1.5 GB; with a budget too large to matter it passes 1.5 GB (the check
+%% can fail), and past 2.5 GB it is stopped.
+memory_stays_bounded(_Config) ->
+    File = rw_test_lib:scenario("stack_1000.json"),
+    Run = fun(Opts) ->
+                  true = erlang:garbage_collect(),
+                  Base = erlang:memory(total),
+                  Self = self(),
+                  Runner = spawn_link(fun() ->
+                                              Self ! {ran, self(), rigidwarp:run(File, Opts#{substep => 0.001, until => 12})}
+                                      end),
+                  {Peak, Result} = peak_memory(Runner, Base),
+                  ct:pal("stack_1000 at 1 us to 12 ms, ~p: VM memory ~.2f GB at the start, ~.2f GB at most; ~P",
+                         [Opts, Base / 1.0e9, Peak / 1.0e9, Result, 30]),
+                  {Peak, Result}
+          end,
+    {Peak, {ok, #{throttled := true, effective_stride_ms := Effective, sim_ms := 12}}} = Run(#{}),
+    ?assert(Effective < 64),
+    ?assert(Peak < 1500000000),
+    {Unbounded, _} = Run(#{speculation_mb => 1 bsl 20}),
+    ?assert(Unbounded > 1500000000),
+    ok.
+
+%% The highest VM memory seen while Runner runs: {Peak, its result}, or
+%% {Peak, stopped} once past 2.5 GB.
+peak_memory(Runner, Peak) ->
+    receive
+        {ran, Runner, Result} -> {Peak, Result}
+    after 20 ->
+            case erlang:memory(total) of
+                M when M > 2500000000 ->
+                    Runner ! {rw_interrupt, sigterm},
+                    receive {ran, Runner, _} -> ok end,
+                    {M, stopped};
+                M -> peak_memory(Runner, max(M, Peak))
+            end
+    end.
 
 no_leaks_after_100_runs(_Config) ->
     File = rw_test_lib:scenario("head_on_elastic.json"),

@@ -33,7 +33,7 @@
 %% node it goes without them (rw_sim:portable/1), and the site there puts
 %% in its own (rw_sim:for_site/4).
 -record(sim, {
-    scene :: #scene{},
+    scene :: #scene{},                        % its stride the one the engine runs with (rw_sim:new/5)
     n :: non_neg_integer(),                   % dynamic bodies (of this node's site, on several nodes)
     end_t :: non_neg_integer(),               % ticks
     sync :: rw_sync:calendar(),               % sync points, regroup points
@@ -51,8 +51,9 @@
     stats :: rw_stats:counters() | undefined,
     profile = false :: boolean(),             % count the engine's stages (rw_stats)
     lvts :: atomics:atomics_ref() | undefined,   % every body's LVT, at rw_sim:lvt_slot(Idx)
-    %% GVT (slot 1), which bodies read when they step, and the next
-    %% checkpoint's sync point (slot 2, 0 for none: rw_commits:commit/4)
+    %% GVT (slot 1), which bodies read when they step, the next
+    %% checkpoint's sync point (slot 2, 0 for none: rw_commits:commit/4),
+    %% and how far past GVT bodies may step (rw_sim:ahead_slot/0)
     gvt_now :: atomics:atomics_ref() | undefined,
     %% the records bodies commit (rw_commits:commit/4): whole ones, when
     %% someone reads this run's frames; else, where the regroup plan reads

@@ -49,6 +49,9 @@
                          integrator => rw_integrate:integrator(), ccd => boolean(),
                          %% contact groups (timewarp): off runs one entity per body, as the paper
                          groups => boolean(), group_max => pos_integer(),
+                         %% the memory (MiB) the speculative history may take (timewarp):
+                         %% the stride is shortened to fit
+                         speculation_mb => pos_integer(),
                          %% recovery (timewarp): restarts from the latest checkpoint
                          %% after a fault, at most max_restarts in restart_period_ms
                          max_restarts => non_neg_integer(), restart_period_ms => pos_integer(),
@@ -72,8 +75,8 @@
 -export_type([sim/0]).
 
 %% The options the Time Warp engine itself takes.
--define(TIMEWARP_KEYS, [buckets, schedulers, nodes, migrate, watchdog_ms, groups, group_max, max_restarts, restart_period_ms,
-                        checkpoint_ms, ring_size]).
+-define(TIMEWARP_KEYS, [buckets, schedulers, nodes, migrate, watchdog_ms, groups, group_max, speculation_mb, max_restarts,
+                        restart_period_ms, checkpoint_ms, ring_size]).
 %% What run/2 takes and start/2 cannot: start/2 hands out frames through
 %% the handle (frames/1, subscribe/1), not to a file or a callback.
 -define(RUN_ONLY_KEYS, [frames, resume, on_frame, on_progress]).
@@ -98,6 +101,10 @@ options() ->
       "other nodes' space (default true)"},
      {groups, boolean, "step bodies in persistent contact as one entity (default true)"},
      {group_max, count, "the most bodies in one contact group (default 1024)"},
+     {speculation_mb, count, "the memory (MiB) the bodies' history past GVT may take: where the stride would need "
+      "more, bodies step ahead of GVT by a shorter one (effective_stride_ms in stats), and while the run holds "
+      "more they step less far (memory_holds); either makes throttled true (default "
+      ++ integer_to_list(rw_speculation:default_mb()) ++ ")"},
      {watchdog_ms, count, "how long GVT may stand still before the run restarts (default 10000)"},
      {max_restarts, non_neg, "restarts after faults allowed within restart_period_ms (default 5)"},
      {restart_period_ms, count, "the period of the restart budget (default 10000)"},

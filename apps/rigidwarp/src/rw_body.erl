@@ -142,14 +142,16 @@ next(step, #data{entity = E} = D) ->
     end;
 next(Phase, D) -> {next_state, Phase, D}.
 
-%% A step: GVT and the LVTs of the partners that limit it are read first,
-%% then the messages already here are taken in (if there were any, the
-%% step waits for the next turn), then it steps.
+%% A step: GVT, how far past it bodies may step (rw_sim:ahead_slot/0) and
+%% the LVTs of the partners that limit it are read first, then the
+%% messages already here are taken in (if there were any, the step waits
+%% for the next turn), then it steps.
 step_now(#data{sim = #sim{gvt_now = GvtNow, lvts = Lvts}, entity = E} = D) ->
     Gvt = atomics:get(GvtNow, 1),
+    Ahead = atomics:get(GvtNow, rw_sim:ahead_slot()),
     Partners = [{P, atomics:get(Lvts, rw_sim:lvt_slot(P))} || P <- rw_entity:partners(E)],
     case drain(D, none) of
-        none -> run({step, Gvt, Partners}, D);
+        none -> run({step, Gvt, Ahead, Partners}, D);
         {Phase, D1} -> next(Phase, D1)
     end.
 
@@ -172,7 +174,7 @@ drain_more(Msg, D) ->
 %% Msg handled, as one task when the simulation is traced (rw_trace): a
 %% step is begun by the process itself.
 task(Msg, #data{sim = #sim{trace = undefined}} = D) -> feed(Msg, D);
-task(Msg, D) -> rw_trace:task(body, case Msg of {step, _, _} -> none; _ -> Msg end, fun() -> feed(Msg, D) end).
+task(Msg, D) -> rw_trace:task(body, case Msg of {step, _, _, _} -> none; _ -> Msg end, fun() -> feed(Msg, D) end).
 
 %% The entity handles Msg; its effects are carried out, and a call's answer
 %% goes back to it.
@@ -186,7 +188,7 @@ feed(Msg, #data{entity = E, sim = Sim} = D) ->
 profiled_handle(_Stats, none, Msg, E) -> rw_entity:handle(Msg, E);
 profiled_handle(Stats, Stage, Msg, E) -> rw_stats:timed(Stats, Stage, fun() -> rw_entity:handle(Msg, E) end).
 
-stage({step, _, _}) -> integrate_reductions;
+stage({step, _, _, _}) -> integrate_reductions;
 stage({gvt, _}) -> gvt_reductions;
 stage({reply, {deleted, _}}) -> rollback_reductions;
 stage(_) -> none.

@@ -66,7 +66,7 @@
 
 -type message() ::
         start
-      | {step, Gvt :: integer(), PartnerLvts :: [{non_neg_integer(), non_neg_integer()}]}
+      | {step, Gvt :: integer(), Ahead :: pos_integer(), PartnerLvts :: [{non_neg_integer(), non_neg_integer()}]}
       | {reply, {written, non_neg_integer(), [rw_cells:hit()], rw_cells:ids(), rw_tvht_plan:where()}
               | {deleted, [{cid(), addr(), addr()}]}}
       | {event, cid(), non_neg_integer(), non_neg_integer(), addr(), non_neg_integer(), rw_response:effect()}
@@ -146,6 +146,9 @@
     pend_anti = #{} :: #{cid() => true},
     %% substeps a group integrates ahead in one step (window/3)
     window = 1 :: pos_integer(),
+    %% how far past GVT it may step, as the last step message said: the
+    %% stride, or less while the run's memory guard holds bodies back
+    reach :: pos_integer(),
     wake_at = none :: none | integer(),         % the GVT the GVT process will wake this entity at
     touched = rw_neighbour:new() :: rw_neighbour:touched(),
     met_at = -1 :: integer(),                   % the latest time a member touched an outside body
@@ -180,7 +183,7 @@ new(Self, #scene{model = M, substep = Dt, stride = Stride, fixtures = Fixtures},
     St0) ->
     Conf = #conf{self = Self, idx = Idx, id = Id, model = M, fixtures = Fixtures, dt = Dt, stride = Stride,
                  end_t = rw_sync:end_t(Cal), cal = Cal},
-    members([Sphere], #e{conf = Conf, g = #g{start = {St0}}}).
+    members([Sphere], #e{conf = Conf, reach = Stride, g = #g{start = {St0}}}).
 
 %% Handle one message: the phase that follows, the entity, and the effects
 %% to carry out in order.
@@ -193,7 +196,7 @@ handle(Msg, #e{effects = []} = E0) ->
     end.
 
 %% The outside bodies whose LVT limits how far this entity may step (the
-%% neighbour rule): {step, Gvt, Lvts} must bring their LVTs.
+%% neighbour rule): {step, Gvt, Ahead, Lvts} must bring their LVTs.
 -spec partners(entity()) -> [non_neg_integer()].
 partners(#e{lvt = Lvt, conf = #conf{dt = Dt}, touched = Touched}) -> rw_neighbour:partners(Lvt, Dt, Touched).
 
@@ -227,7 +230,7 @@ dispatch(start, #e{phase = ready, g = #g{start = St0} = G, conf = #conf{model = 
     T0 = rw_sync:start(Cal),
     write_states(T0, [rw_chain:pack([St], M) || St <- tuple_to_list(St0)], T0, [],
                  E#e{lvt = T0, g = G#g{start = undefined}});
-dispatch({step, Gvt, Lvts}, #e{phase = step} = E) -> step(Gvt, Lvts, E);
+dispatch({step, Gvt, Ahead, Lvts}, #e{phase = step} = E) -> step(Gvt, Ahead, Lvts, E);
 dispatch({bundle, S, _, _, _} = Msg, #e{phase = step, lvt = S, g = #g{stop_at = [S | _], moves = Moves}} = E) ->
     %% a new member arrives before this entity has seen GVT reach the
     %% regroup point (GVT is there, or no old leader would hand over):
@@ -316,9 +319,10 @@ resume({deleted, Lost}, {undo, R, Then}, E) ->
 
 %%% Step (Alg. 2)
 
-step(Gvt0, Lvts, E0) ->
+step(Gvt0, Ahead, Lvts, E0) ->
     #e{lvt = Lvt, gvt = Gvt, conf = #conf{stride = Stride, end_t = End, dt = Dt}} = E1 = on_gvt(Gvt0, E0),
-    case regroup(min(max(Gvt, rw_sync:start(E1#e.conf#conf.cal)) + Stride, End), E1) of
+    Reach = min(Stride, Ahead),
+    case regroup(lvt_ub(Gvt, Reach, E1), E1#e{reach = Reach}) of
         {handover, Move, E} ->
             handover(Move, E);
         {Last, Capped, E} ->
@@ -343,6 +347,14 @@ step(Gvt0, Lvts, E0) ->
             end
     end.
 
+%% LVT_ub: GVT + Reach (the stride, or less while the run's memory guard
+%% holds bodies back), but never short of the first sync point after GVT:
+%% the bodies that hold GVT back must always be able to reach it.
+lvt_ub(Gvt, Stride, #e{conf = #conf{stride = Stride, end_t = End, cal = Cal}}) ->
+    min(max(Gvt, rw_sync:start(Cal)) + Stride, End);
+lvt_ub(Gvt, Reach, #e{conf = #conf{end_t = End, cal = Cal}}) ->
+    min(max(max(Gvt, rw_sync:start(Cal)) + Reach, rw_sync:after_gvt(Gvt, Cal)), End).
+
 %% How far a step from Lvt goes, To allowing. A single body goes all the
 %% way: its write costs far more than the substeps it computes past a
 %% contact it finds there (Bouncing 500 ran a tenth faster than with a
@@ -354,12 +366,13 @@ window(_Lvt, To, #e{g = #g{spheres = {_}}}) -> To;
 window(Lvt, To, #e{window = Window, conf = #conf{dt = Dt}}) -> min(To, Lvt + Window * Dt).
 
 %% The shortest step a body takes once it has passed the next sync point:
-%% seven eighths of a stride. A write costs about the same however many
+%% seven eighths of a stride (of its reach, while the memory guard holds
+%% bodies back). A write costs about the same however many
 %% substeps it holds, so shorter steps pay for more writes (with three
 %% quarters, Bouncing 500 took 8 % more steps and ran 6 % slower); a whole
 %% stride would make bodies in contact wait (GVT must reach the body's LVT
 %% first).
-min_step(#e{conf = #conf{stride = S, dt = Dt}}) -> max(Dt, (S * 7 div 8) div Dt * Dt).
+min_step(#e{reach = S, conf = #conf{dt = Dt}}) -> max(Dt, (S * 7 div 8) div Dt * Dt).
 
 %% Integrate from LVT to Last assuming no new contacts, and write.
 advance(Lvt, Last, #e{g = #g{spheres = Spheres, base = Base}, island = Island0, timeline = TL,
@@ -526,13 +539,13 @@ undone(R, Lost, #e{g = #g{idxs = Idxs} = G, lvt = Lvt, timeline = TL, conf = #co
 
 %% An entity that cannot step until GVT advances asks the GVT process to
 %% wake it then: at its regroup point S (capped at S, it waits for GVT to
-%% reach S), or at the earliest GVT at which it might step (step/3): when
+%% reach S), or at the earliest GVT at which it might step (step/4): when
 %% LVT_ub is min_step/1 past its LVT, reaches the end, or when no sync
 %% point lies between GVT and its LVT any more. Early is harmless (it asks
 %% again), late would stall.
 wait(true, #e{lvt = S} = E) -> wake_at(S, E);
 wait(false, #e{lvt = Lvt, conf = #conf{end_t = End}} = E) when Lvt >= End -> E;
-wait(false, #e{lvt = Lvt, gvt = G, conf = #conf{stride = S, end_t = End, cal = Cal}} = E) ->
+wait(false, #e{lvt = Lvt, gvt = G, reach = S, conf = #conf{end_t = End, cal = Cal}} = E) ->
     wake_at(max(G + 1, lists:min([Lvt + min_step(E) - S, End - S, rw_sync:last_before(Lvt, Cal)])), E).
 
 wake_at(At, #e{wake_at = Asked} = E) when is_integer(Asked), Asked =< At -> E;   % already asked for as early
@@ -593,13 +606,14 @@ withdraw(T, #e{timeline = TL, g = #g{idxs = Idxs}} = E) ->
     end.
 
 %% History before GVT can never be needed again; pruning it costs a pass,
-%% so it is done once per stride. (A wake-up may come after the entity has
-%% read a later GVT itself.)
+%% so it is done once per stride (per reach, while the memory guard holds
+%% bodies back: the history is to shrink then). (A wake-up may come after
+%% the entity has read a later GVT itself.)
 on_gvt(G, #e{gvt = Known} = E) when G =< Known -> E;
 on_gvt(G, #e{g = #g{gc_at = At}} = E) when G < At -> E#e{gvt = G};
-on_gvt(G, #e{timeline = TL, touched = Touched, g = Grp, conf = #conf{stride = Stride, dt = Dt}} = E) ->
+on_gvt(G, #e{timeline = TL, touched = Touched, g = Grp, reach = Reach, conf = #conf{dt = Dt}} = E) ->
     E#e{gvt = G, touched = rw_neighbour:forget(G, Dt, Touched), timeline = rw_timeline:prune(G, TL),
-        g = Grp#g{gc_at = G + Stride}}.
+        g = Grp#g{gc_at = G + Reach}}.
 
 %%% Contact groups
 

@@ -43,7 +43,7 @@
 -define(DEFAULT_RESTART_PERIOD_MS, 10000).
 %% The options the simulation's tree takes.
 -define(SIM_KEYS, [groups, group_max, regroup_every, grouping, profile, delay, watchdog_ms, ring_size,
-                   checkpoint_ms, trace, read_frames]).
+                   checkpoint_ms, trace, read_frames, speculation_mb]).
 
 -record(r, {
     scene :: #scene{},                        % from the run's first start time
@@ -408,7 +408,7 @@ ms(T, #r{scene = Scene}) -> rw_scene:ms(Scene, T).
 
 tick(Ms, #scene{tick_us = U}) -> round(Ms * 1000 / U).
 
-stats_of(#r{scene = #scene{spheres = Spheres, substep = Dt, duration = End}, stats = Ref,
+stats_of(#r{scene = #scene{spheres = Spheres, substep = Dt, duration = End, stride = Asked}, stats = Ref,
             sim = Sim, started = T0, start = Start} = R) ->
     Profile = case Sim of #sim{profile = P} -> P; undefined -> false end,
     {SiteCounts, SiteLead} = site_stats(R),
@@ -444,4 +444,12 @@ stats_of(#r{scene = #scene{spheres = Spheres, substep = Dt, duration = End}, sta
          gvt => GvtMs, start_ms => ms(Start, R), end_ms => ms(End, R), max_lvt => ms(max(Lead, G), R), wall_ms => Wall,
          realtime_factor => max(0, GvtMs - ms(Start, R)) / Wall,
          status => case R#r.status of {crashed, _, _} -> crashed; Status -> Status end,
-         restarts => R#r.restarted}, R#r{lead = LeadRead}}.
+         restarts => R#r.restarted,
+         %% the scene's stride, and the one the engine runs with under the
+         %% run's memory budget for speculation (rw_speculation); throttled
+         %% also when the memory guard held bodies back
+         stride_ms => ms(Asked, R), effective_stride_ms => ms(stride(Sim, Asked), R),
+         throttled => stride(Sim, Asked) < Asked orelse maps:get(memory_holds, Raw) > 0}, R#r{lead = LeadRead}}.
+
+stride(#sim{scene = #scene{stride = Stride}}, _Asked) -> Stride;
+stride(undefined, Asked) -> Asked.

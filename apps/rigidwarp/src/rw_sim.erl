@@ -4,7 +4,7 @@
 %% argument.
 -module(rw_sim).
 -include("rigidwarp.hrl").
--export([new/5, portable/1, for_site/4, for_bodies/1, lvt_slot/1, lead/4]).
+-export([new/5, portable/1, for_site/4, for_bodies/1, lvt_slot/1, ahead_slot/0, lead/4]).
 -export_type([options/0, tables/0, lead/0]).
 
 %% The simulation's working tables (rw_sim_tables) and the run's records
@@ -18,6 +18,8 @@
                      regroup_every => pos_integer(), grouping => persistent | eager,
                      profile => boolean(), delay => {Seed :: integer(), MaxMs :: non_neg_integer()},
                      read_frames => boolean(),
+                     %% the memory the run's speculative history may take (rw_speculation)
+                     speculation_mb => pos_integer(),
                      trace => ets:tid(),
                      atom() => term()}.
 
@@ -28,10 +30,15 @@
 %% The LVT of a body on another node, as this node's bodies read it.
 -define(NOT_HERE, 16#FFFFFFFFFFFFFFFF).
 
+%% The context's scene is the one the engine runs: its stride is the
+%% scene's, or shorter where the scene's would take more memory than the
+%% run's budget for speculation (rw_speculation).
 -spec new(#scene{}, tables(), tuple(), rw_stats:counters(), options()) -> #sim{}.
-new(#scene{spheres = Spheres, duration = End, frame = Frame, stride = Stride, start = Start, substep = Dt} = Scene,
+new(#scene{spheres = Spheres, duration = End, frame = Frame, stride = Asked, start = Start, substep = Dt} = Scene0,
     #{records := Records, counts := Counts, ring := Ring, owners := Owners, procs := Procs, met := Met},
     Buckets, Stats, Opts) ->
+    Stride = rw_speculation:stride(rw_speculation:budget_bytes(Opts), length(Spheres), Dt, Asked),
+    Scene = Scene0#scene{stride = Stride},
     Kept = records_kept(Scene, Opts),
     SyncEvery = sync_every(Kept =:= sparse, Scene),
     Period = case {maps:get(groups, Opts, true), maps:find(regroup_every, Opts)} of
@@ -39,12 +46,12 @@ new(#scene{spheres = Spheres, duration = End, frame = Frame, stride = Stride, st
                  {true, {ok, Every}} -> Every * Stride;
                  {true, error} -> period(Dt, Frame * SyncEvery)
              end,
-    Cal = rw_sync:sparse(rw_sync:new(Frame, Stride, End, Period, Start), SyncEvery),
+    Cal = rw_sync:sparse(rw_sync:new(Frame, rw_speculation:sync_stride(Stride, Dt), End, Period, Start), SyncEvery),
     #sim{scene = Scene, n = length(Spheres), end_t = End, sync = Cal,
          buckets = Buckets, placement = tuple_size(Buckets), records = Records, counts = Counts, ring = Ring, owners = Owners, procs = Procs,
          met = Met, stats = Stats, profile = maps:get(profile, Opts, false),
          lvts = lvts(Spheres, Start),
-         gvt_now = gvt_now(), group_max = maps:get(group_max, Opts, ?DEFAULT_GROUP_MAX),
+         gvt_now = gvt_now(Stride), group_max = maps:get(group_max, Opts, ?DEFAULT_GROUP_MAX),
          grouping = maps:get(grouping, Opts, persistent), delay = maps:get(delay, Opts, none),
          trace = maps:get(trace, Opts, undefined),
          records_kept = Kept}.
@@ -99,7 +106,7 @@ for_site(#sim{scene = #scene{spheres = Spheres, start = Start}} = Sim, Idxs,
     Here = maps:from_keys(Idxs, true),
     _ = [atomics:put(Lvts, lvt_slot(I), ?NOT_HERE) || #sphere{idx = I} <- Spheres, not is_map_key(I, Here)],
     Sim#sim{n = length(Idxs), records = Records, counts = Counts, owners = Owners, procs = Procs, met = Met,
-            stats = Stats, lvts = Lvts, gvt_now = gvt_now()}.
+            stats = Stats, lvts = Lvts, gvt_now = gvt_now(Sim#sim.scene#scene.stride)}.
 
 %% What a body holds: not the whole scene's bodies, which it never reads
 %% (a copy per body fills the heaps).
@@ -142,9 +149,15 @@ fresh(Now, Lvts) ->
     Lead = lists:max([0 | Lvts]),
     {Lead, {Now, Lead}}.
 
-gvt_now() ->
-    Ref = atomics:new(2, [{signed, true}]),
+%% Where in #sim.gvt_now bodies read how far past GVT they may step (the
+%% stride, unless the run's memory guard holds them back: rw_memory_guard).
+-spec ahead_slot() -> pos_integer().
+ahead_slot() -> 3.
+
+gvt_now(Stride) ->
+    Ref = atomics:new(3, [{signed, true}]),
     ok = atomics:put(Ref, 1, -1),
+    ok = atomics:put(Ref, ahead_slot(), Stride),
     Ref.
 
 %% Bodies may regroup at the frame times that are sync points (every F

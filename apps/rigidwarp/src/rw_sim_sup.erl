@@ -9,7 +9,9 @@
 %%           |-- rw_sweeper       forgets the records the GVT process is done with
 %%           |-- rw_gvt           GVT counter, frames into the ring, regroup plans
 %%           |-- rw_watchdog      says who holds GVT back when it stalls
-%%           `-- bodies           simple_one_for_one: one rw_body per sphere
+%%           |-- bodies           simple_one_for_one: one rw_body per sphere
+%%           `-- rw_memory_guard  holds bodies back when the run outgrows its
+%%                                memory budget (on one node)
 %%
 %% Each child depends on those before it, and gets the simulation's
 %% context (#sim{}, rw_sim) as a start argument: start_link/5 adds them in
@@ -32,8 +34,8 @@
 -type options() :: #{nodes => [node()], run => pid(), frames => boolean(), ring_size => pos_integer(),
                      checkpoint_ms => non_neg_integer(), watchdog_ms => pos_integer(), atom() => term()}.
 %% A process of the simulation, as a fault report names it.
--type who() :: tables | {bucket, non_neg_integer()} | gvt | sweeper | watchdog | {body, binary()} | {site, node()}
-             | {site_gvt, node()}.
+-type who() :: tables | {bucket, non_neg_integer()} | gvt | sweeper | watchdog | {body, binary()} | memory_guard
+             | {site, node()} | {site_gvt, node()}.
 
 %% Start the tree of a simulation of Scene (from its start time) with
 %% NBuckets buckets, linked to the caller, over the run's records and ring
@@ -71,8 +73,13 @@ one_node(Sup, #scene{model = M, substep = Dt, spheres = Spheres, initial = Initi
                                                                maps:get(watchdog_ms, Opts, 10000)])),
     {ok, BodySup} = child(Sup, rw_sim_parts:body_pool()),
     Bodies = rw_sim_parts:start_bodies(BodySup, rw_sim:for_bodies(Sim), lists:zip(Spheres, Initial)),
+    %% (started before the bodies go: it measures the memory the run
+    %% holds from there)
+    {ok, Guard} = child(Sup, rw_sim_parts:worker(memory_guard, rw_memory_guard,
+                                                 [Sim, [Pid || {_, _, Pid} <- Bodies] ++ [P || {_, P} <- Buckets],
+                                                  rw_speculation:budget_bytes(Opts)])),
     _ = [Pid ! go || {_, _, Pid} <- Bodies],
-    {Sim, [{Gvt, gvt}, {Sweeper, sweeper}, {Watchdog, watchdog}]
+    {Sim, [{Gvt, gvt}, {Sweeper, sweeper}, {Watchdog, watchdog}, {Guard, memory_guard}]
           ++ [{P, {bucket, I}} || {I, P} <- Buckets] ++ [{Pid, {body, Id}} || {_, Id, Pid} <- Bodies]}.
 
 %% Over several nodes: a site on each (rw_site), the bodies and buckets

@@ -12,15 +12,16 @@
 -export_type([name/0, counters/0]).
 
 -type name() :: events | antievents | primary_rollbacks | secondary_rollbacks | rolled_back_substeps
-              | computed_substeps | steps | regroups
+              | computed_substeps | steps | regroups | memory_holds
               | tvht_reductions | integrate_reductions | rollback_reductions | gvt_reductions.
 -type counters() :: counters:counters_ref().
 
 %% steps: writes to the TVHT (one per step of an entity, any length);
-%% regroups: contact groups that change.
+%% regroups: contact groups that change; memory_holds: times the memory
+%% guard cut how far bodies step past GVT (rw_memory_guard).
 names() ->
     [events, antievents, primary_rollbacks, secondary_rollbacks, rolled_back_substeps, computed_substeps,
-     steps, regroups | profile_names()].
+     steps, regroups, memory_holds | profile_names()].
 
 %% tvht: hashing by the entities, the rest by the buckets; rollback: an
 %% entity's own bookkeeping of a rollback (the buckets count their deletes
@@ -44,7 +45,8 @@ slot(regroups) -> 8;
 slot(tvht_reductions) -> 9;
 slot(integrate_reductions) -> 10;
 slot(rollback_reductions) -> 11;
-slot(gvt_reductions) -> 12.
+slot(gvt_reductions) -> 12;
+slot(memory_holds) -> 13.
 
 %% Every counter by name (the profile's only when Profile).
 -spec read(counters(), boolean()) -> #{name() => integer()}.

@@ -13,7 +13,7 @@
                      %% the owner hears {rw_done, Run, EndMs} and {rw_crashed, Run, Who,
                      %% Reason}, and of every frame or its time if it subscribes
                      owner => pid(), subscribe => none | frames | times,
-                     groups => boolean(), group_max => pos_integer(),
+                     groups => boolean(), group_max => pos_integer(), speculation_mb => pos_integer(),
                      %% (tests) regroup points this many strides apart, groups of
                      %% all bodies near each other however they move
                      regroup_every => pos_integer(), grouping => persistent | eager,
@@ -31,7 +31,7 @@
                      on_checkpoint => fun((rw_reference:checkpoint()) -> any()),
                      on_progress => fun((map()) -> any())}.
 
--define(RUN_KEYS, [buckets, schedulers, nodes, migrate, groups, group_max, regroup_every, grouping, watchdog_ms, ring_size, profile, read_frames,
+-define(RUN_KEYS, [buckets, schedulers, nodes, migrate, groups, group_max, speculation_mb, regroup_every, grouping, watchdog_ms, ring_size, profile, read_frames,
                    trace, delay, max_restarts, restart_period_ms, checkpoint_ms, from]).
 
 %% Start a simulation; it runs on its own until the scene's end.

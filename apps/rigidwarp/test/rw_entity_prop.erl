@@ -55,6 +55,7 @@
 
 -record(m, {
     scene :: #scene{},
+    ahead = stride :: ahead_mode(),           % how far past GVT entities may step (ahead/1)
     cal :: rw_sync:calendar(),
     n :: pos_integer(),
     ents = #{} :: #{non_neg_integer() => rw_entity:entity()},
@@ -92,7 +93,7 @@
 
 -spec prop_protocol() -> proper:test().
 prop_protocol() ->
-    ?FORALL({Scene, Groups}, {scene(), {groups(), oneof([1, 2, 4]), sync_every()}},
+    ?FORALL({Scene, Groups}, {scene(), {groups(), oneof([1, 2, 4]), sync_every(), ahead_mode()}},
             begin
                 %% (the model is built from this small term when the first
                 %% command needs it, so that a counterexample prints short)
@@ -177,15 +178,22 @@ groups() -> frequency([{3, off}, {1, {eager, 2, 1}}, {1, {eager, 3, 2}}]).
 %% not committed.
 sync_every() -> frequency([{2, 1}, {1, 2}, {1, 3}]).
 
+%% How far past GVT entities may step: the stride; now and then less; or
+%% always one substep, as under a memory guard that holds the run back to
+%% the least (rw_memory_guard).
+-type ahead_mode() :: stride | varying | least.
+ahead_mode() -> frequency([{3, stride}, {1, varying}, {1, least}]).
+
 %%% The model's start
 
--type unbuilt() :: {unbuilt, #scene{}, {off | {eager, pos_integer(), pos_integer()}, pos_integer(), pos_integer()}}.
+-type unbuilt() :: {unbuilt, #scene{}, {off | {eager, pos_integer(), pos_integer()}, pos_integer(), pos_integer(),
+                                          ahead_mode()}}.
 
 built({unbuilt, Scene, Groups}) -> model(Scene, Groups).
 
--spec model(#scene{}, {off | {eager, pos_integer(), pos_integer()}, pos_integer(), pos_integer()}) -> #m{}.
+-spec model(#scene{}, {off | {eager, pos_integer(), pos_integer()}, pos_integer(), pos_integer(), ahead_mode()}) -> #m{}.
 model(#scene{spheres = Spheres, initial = Initial, duration = End, frame = Frame, stride = Stride, model = Model,
-             substep = Dt, start = Start} = Scene, {Groups, NBuckets, SyncEvery}) ->
+             substep = Dt, start = Start} = Scene, {Groups, NBuckets, SyncEvery, AheadMode}) ->
     {Period, Max} = case Groups of
                         off -> {0, 1};
                         {eager, GMax, Every} -> {Every * Stride, GMax}
@@ -193,7 +201,7 @@ model(#scene{spheres = Spheres, initial = Initial, duration = End, frame = Frame
     Cal = rw_sync:sparse(rw_sync:new(Frame, Stride, End, Period, Start), SyncEvery),
     Idxs = [I || #sphere{idx = I} <- Spheres],
     Ents = maps:from_list([{I, rw_entity:new(I, Scene, Cal, S, St)} || {#sphere{idx = I} = S, St} <- lists:zip(Spheres, Initial)]),
-    M0 = #m{scene = Scene, cal = Cal, n = length(Spheres), ents = Ents,
+    M0 = #m{scene = Scene, cal = Cal, n = length(Spheres), ents = Ents, ahead = AheadMode,
             phase = maps:from_list([{I, ready} || I <- Idxs]), due = maps:from_list([{I, false} || I <- Idxs]),
             owners = maps:from_list([{I, I} || I <- Idxs]), lvts = maps:from_list([{I, Start} || I <- Idxs]),
             buckets = list_to_tuple([rw_cells:new(Model, Dt) || _ <- lists:seq(1, NBuckets)]), gp = #gvtp{groups = rw_regroup:new(Idxs, Max, eager)}},
@@ -368,7 +376,18 @@ check_ack(_From, _To, _Msg, M) -> M.
 do_step(I, #m{ents = Ents, gvt = Gvt, lvts = Lvts, actions = A, stepped = Stepped} = M0) ->
     M = M0#m{actions = A + 1, stepped = Stepped#{I => A}},
     Partners = [{P, maps:get(P, Lvts)} || P <- rw_entity:partners(maps:get(I, Ents))],
-    feed(I, {step, Gvt, Partners}, M).
+    feed(I, {step, Gvt, ahead(M), Partners}, M).
+
+%% How far past GVT an entity may step (ahead_mode/0); the promises
+%% checked hold whatever it is.
+ahead(#m{ahead = stride, scene = #scene{stride = S}}) -> S;
+ahead(#m{ahead = least, scene = #scene{substep = Dt}}) -> Dt;
+ahead(#m{ahead = varying, scene = #scene{stride = S, substep = Dt}, actions = A}) ->
+    case A rem 5 of
+        0 -> Dt;
+        1 -> max(Dt, S div 2 div Dt * Dt);
+        _ -> S
+    end.
 
 %% Entity I handles Msg; its effects are carried out in order, and a call's
 %% answer goes back to it.

@@ -30,14 +30,21 @@
       --groups on|off        timewarp: step bodies in persistent contact as one entity
                              (default on; off is the paper's one entity per body)
       --group-max N          timewarp: the most bodies in one contact group (default 1024)
+      --speculation-mb N     timewarp: the memory in MiB that the bodies' history past GVT may
+                             take (default 1024); where the stride would need more, bodies
+                             step ahead of GVT by a shorter one (the summary's
+                             effective_stride_ms), and while the run holds more than that
+                             they step less far (memory_holds counts the cuts); either makes
+                             throttled true; the frames are the same
       --quiet                no progress line on stderr
       the summary's keys in this order (those the run has; any others follow, sorted):
                              scene, engine, bodies, substep_ms, stride_ms, sim_ms, wall_ms,
                              realtime_factor, frames, then
-                             timewarp: events, antievents, rollbacks, primary_rollbacks,
-                             secondary_rollbacks, rolled_back_substeps, computed_substeps,
-                             committed_substeps, efficiency, steps, regroups, restarts,
-                             nodes, cross_node_messages, cross_node_bytes,
+                             timewarp: effective_stride_ms, throttled, memory_holds, events,
+                             antievents, rollbacks, primary_rollbacks, secondary_rollbacks,
+                             rolled_back_substeps, computed_substeps, committed_substeps,
+                             efficiency, steps, regroups, restarts, nodes,
+                             cross_node_messages, cross_node_bytes,
                              cross_node_messages_per_s, cross_node_bytes_per_s, migrations,
                              resumed_from_ms;
                              reference: substeps, body_substeps, pair_contacts, fixture_contacts,

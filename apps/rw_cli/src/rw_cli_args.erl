@@ -7,7 +7,8 @@
 -export([parse/1, bad_flag/2, pos_int/2, pos_ms/2, format_ms/1, shell_quote/1]).
 
 -define(VALUE_FLAGS, ["--engine", "--schedulers", "--nodes", "--connect", "--cookie", "--buckets", "--frames", "--until", "--substep",
-                      "--stride", "--frame-ms", "--integrator", "--ccd", "--groups", "--group-max"]).
+                      "--stride", "--frame-ms", "--integrator", "--ccd", "--groups", "--group-max",
+                      "--speculation-mb"]).
 
 %% Flags to {SceneFile, Options, Quiet}.
 -spec parse([string()]) -> {string(), map(), boolean()}.
@@ -66,6 +67,10 @@ parse(["--groups", "on" | Rest], F, O, Q) -> parse(Rest, F, O#{groups => true}, 
 parse(["--groups", "off" | Rest], F, O, Q) -> parse(Rest, F, O#{groups => false}, Q);
 parse(["--groups", V | _], _, _, _) -> throw({usage, "--groups must be on or off, got " ++ V});
 parse(["--group-max", V | Rest], F, O, Q) -> parse(Rest, F, O#{group_max => pos_int("--group-max", V)}, Q);
+parse(["--speculation-mb", V | Rest], F, O, Q) ->
+    N = pos_int("--speculation-mb", V),
+    N =< 1 bsl 20 orelse throw({usage, "--speculation-mb must be at most 1048576 (1 TiB), got " ++ V}),
+    parse(Rest, F, O#{speculation_mb => N}, Q);
 parse([[$- | _] = Flag | _], _, _, _) -> bad_flag(Flag, ?VALUE_FLAGS);
 parse([File | Rest], undefined, O, Q) -> parse(Rest, File, O, Q);
 parse([Extra | _], _, _, _) -> throw({usage, "unexpected argument " ++ Extra}).

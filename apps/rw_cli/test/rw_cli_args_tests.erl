@@ -8,6 +8,13 @@ resume_needs_frames_test() ->
     ?assertMatch({"s.json", #{resume := true, frames := "f"}, false},
                  rw_cli_args:parse(["s.json", "--resume", "--frames", "f"])).
 
+%% --speculation-mb: a whole number of MiB, 1 up to 1 TiB.
+speculation_mb_test() ->
+    ?assertMatch({"s.json", #{speculation_mb := 256}, false}, rw_cli_args:parse(["s.json", "--speculation-mb", "256"])),
+    [?assertThrow({usage, "--speculation-mb must be " ++ _}, rw_cli_args:parse(["s.json", "--speculation-mb", V]))
+     || V <- ["0", "-1", "1.5", "x", "1048577"]],
+    ?assertThrow({usage, "--speculation-mb needs a value"}, rw_cli_args:parse(["s.json", "--speculation-mb"])).
+
 shell_quote_test_() ->
     Args = ["plain/path.json", "--until", "1.5", "", "two words", "it's", "a\"b", "$HOME", "`x`", "a\\b",
             "semi;colon", "new\nline", "*", "~", "ünï"],
