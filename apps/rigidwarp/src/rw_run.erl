@@ -93,6 +93,9 @@
     %% since, and the sites of the tree as it stands
     remote = #{} :: #{atom() => integer()},
     sites = [] :: [pid()],
+    %% the counters of each site of the tree as last read, for a site that
+    %% cannot answer any more (its node is lost)
+    seen = #{} :: #{pid() => #{atom() => integer()}},
     start = 0 :: non_neg_integer(),           % where this run began, in ticks (its committed work counts from there)
     started :: integer(),                     % monotonic ms
     ended = none :: none | integer(),
@@ -252,7 +255,8 @@ incarnate(#r{scene = Scene0, checkpoint = Checkpoint, opts = Opts} = R) ->
 teardown(#r{sup = none} = R) -> R;
 teardown(#r{sup = Sup, watched = W} = R0) ->
     _ = [erlang:demonitor(Ref, [flush]) || Ref <- maps:keys(W)],
-    R = R0#r{remote = add_counts(R0#r.remote, site_counts(R0)), sites = []},
+    {Counts, _, _} = site_stats(R0),
+    R = R0#r{remote = add_counts(R0#r.remote, Counts), sites = [], seen = #{}},
     ok = rw_sim_parts:stop(Sup),
     receive {'EXIT', Sup, _} -> ok after 0 -> ok end,
     %% (the next tree's bodies publish their LVTs anew: read them afresh)
@@ -308,7 +312,7 @@ handle_info({rw_checkpoint, _Gvt, {checkpoint, T, _, _} = C}, #r{checkpoint = Ol
         {checkpoint, OldT, _, _} when OldT >= T -> {noreply, R};
         _ ->
             _ = [Pid ! {rw_checkpoint, self(), C} || {Pid, _, true} <- R#r.subs],
-            {noreply, maybe_migrate(R#r{checkpoint = C})}
+            {noreply, maybe_migrate(look_at_sites(R#r{checkpoint = C}))}
     end;
 handle_info({rw_done, _Gvt, EndMs}, #r{status = running} = R) ->
     R1 = teardown(R),
@@ -424,21 +428,28 @@ fault(Who, Reason, #r{opts = Opts} = R0) ->
     end.
 
 %% The counters of the sites of the tree (on several nodes): those of the
-%% sites on other nodes, and what every node has sent to the others.
-site_counts(R) -> element(1, site_stats(R)).
+%% sites on other nodes, and what every node has sent to the others; the
+%% highest LVT of their bodies; and the run with the counters read. A site
+%% that cannot answer (its node is lost) counts as last read: at the
+%% latest checkpoint at least (look_at_sites/1), so that the work redone
+%% from there is never counted as done once only, and efficiency stays at
+%% or below 1.
+site_stats(#r{sites = Sites, seen = Seen} = R) ->
+    lists:foldl(fun(Site, {Acc, Lead, Ri}) ->
+                        {Counts, L} = try rw_site:stats(Site)
+                                      catch exit:_ -> {maps:get(Site, Seen, #{}), 0}
+                                      end,
+                        Mine = case node(Site) =:= node() of
+                                   true -> maps:with([dist_messages, dist_bytes], Counts);
+                                   false -> Counts
+                               end,
+                        {add_counts(Acc, Mine), max(Lead, L), Ri#r{seen = (Ri#r.seen)#{Site => Counts}}}
+                end, {#{}, 0, R}, Sites).
 
-%% ... and the highest LVT of their bodies.
-site_stats(#r{sites = Sites}) ->
-    lists:foldl(fun(Site, {Acc, Lead}) ->
-                        try rw_site:stats(Site) of
-                            {Counts, L} when node(Site) =:= node() ->
-                                {add_counts(Acc, maps:with([dist_messages, dist_bytes], Counts)), max(Lead, L)};
-                            {Counts, L} ->
-                                {add_counts(Acc, Counts), max(Lead, L)}
-                        catch
-                            exit:_ -> {Acc, Lead}
-                        end
-                end, {#{}, 0}, Sites).
+%% Read the sites' counters at a checkpoint, the point a restart goes back
+%% to: every body's work up to it is counted there.
+look_at_sites(#r{sites = []} = R) -> R;
+look_at_sites(R) -> element(3, site_stats(R)).
 
 take(Key, Map) ->
     case maps:take(Key, Map) of
@@ -504,9 +515,11 @@ tick(Ms, #scene{tick_us = U}) -> round(Ms * 1000 / U).
 stats_of(#r{scene = #scene{spheres = Spheres, substep = Dt, duration = End}, stats = Ref,
             sim = Sim, started = T0, start = Start} = R) ->
     Profile = case Sim of #sim{profile = P} -> P; undefined -> false end,
-    {SiteCounts, SiteLead} = site_stats(R),
-    Raw = add_counts(add_counts(rw_stats:read(Ref, Profile), R#r.remote), SiteCounts),
+    %% GVT before the counters: a body counts its work before it commits
+    %% it, so the work up to G is all counted by then
     G = gvt_tick(R),
+    {SiteCounts, SiteLead, R0} = site_stats(R),
+    Raw = add_counts(add_counts(rw_stats:read(Ref, Profile), R#r.remote), SiteCounts),
     N = length(Spheres),
     Committed = N * (max(G, Start) - Start) div Dt,
     Computed = maps:get(computed_substeps, Raw),
@@ -537,4 +550,4 @@ stats_of(#r{scene = #scene{spheres = Spheres, substep = Dt, duration = End}, sta
          gvt => GvtMs, start_ms => ms(Start, R), end_ms => ms(End, R), max_lvt => ms(max(Lead, G), R), wall_ms => Wall,
          realtime_factor => max(0, GvtMs - ms(Start, R)) / Wall,
          status => case R#r.status of {crashed, _, _} -> crashed; Status -> Status end,
-         restarts => R#r.restarted}, R#r{lead = LeadRead}}.
+         restarts => R#r.restarted}, R0#r{lead = LeadRead}}.
