@@ -113,9 +113,9 @@ start(Scene, Opts) ->
                 {ok, Run} ->
                     ok = rw_nodes:unlink(Nodes),
                     {ok, Run};
-                Error ->
+                {error, Reason} ->
                     ok = rw_nodes:stop(Nodes),
-                    Error
+                    {error, refused(Reason)}
             end;
         {error, Message} ->
             {error, {nodes, Message}}
@@ -184,13 +184,15 @@ stats(Run) -> gen_server:call(Run, stats).
 -spec start_link(#scene{}, options()) -> {ok, pid()} | {error, term()}.
 start_link(Scene, Opts) -> gen_server:start_link(?MODULE, {Scene, Opts}, []).
 
--spec init({#scene{}, options()}) -> {ok, #r{}} | {stop, term()}.
+%% A run that cannot start stops with {shutdown, Reason}: its caller gets
+%% the reason, and nothing is reported as a crash.
+-spec init({#scene{}, options()}) -> {ok, #r{}} | {stop, {shutdown, term()}}.
 init({Scene, #{nodes := Nodes} = Opts}) ->
     process_flag(trap_exit, true),
     ok = rw_nodes:link(Nodes),
     case schedulers(Opts) of
         ok -> init(Scene, Opts, Nodes);
-        {error, Message} -> {stop, {schedulers, Message}}
+        {error, Message} -> {stop, {shutdown, {schedulers, Message}}}
     end.
 
 init(Scene, Opts, Nodes) ->
@@ -208,8 +210,11 @@ init(Scene, Opts, Nodes) ->
     R = flow(R0#r{start = restart_tick(R0)}),
     case incarnate(R) of
         {ok, R1} -> {ok, R1};
-        {error, Reason} -> ok = rw_nodes:stop(Nodes), _ = release_schedulers(R), {stop, Reason}
+        {error, Reason} -> ok = rw_nodes:stop(Nodes), _ = release_schedulers(R), {stop, {shutdown, Reason}}
     end.
+
+refused({shutdown, Reason}) -> Reason;
+refused(Reason) -> Reason.
 
 %% The frames the ring keeps unless asked otherwise (rw_ring:frames_kept/2):
 %% the latest ring_frames (the application's environment, 1024 by
