@@ -15,13 +15,13 @@
 -include("rw_test.hrl").
 -export([all/0, suite/0, init_per_suite/1, end_per_suite/1]).
 -export([peers_run_the_c_loops/1, every_scenario_equal/1, contact_scenes_equal/1, random_scenes_equal/1, piles_regroup_across_batches/1, own_peers_equal_and_stopped/1, node_killed_mid_run/1,
-         node_stopped_mid_run/1, bodies_move_to_the_node_of_their_space/1, peers_stopped_however_the_run_ends/1, cross_node_traffic_is_counted/1,
+         node_stopped_mid_run/1, lost_node_work_still_counted/1, bodies_move_to_the_node_of_their_space/1, peers_stopped_however_the_run_ends/1, cross_node_traffic_is_counted/1,
          bad_nodes_are_refused/1, watchdog_names_stuck_body_elsewhere/1]).
 
 suite() -> [{timetrap, {minutes, 10}}].
 
 all() -> [peers_run_the_c_loops, every_scenario_equal, contact_scenes_equal, random_scenes_equal, piles_regroup_across_batches, own_peers_equal_and_stopped, node_killed_mid_run,
-          node_stopped_mid_run, bodies_move_to_the_node_of_their_space, peers_stopped_however_the_run_ends, cross_node_traffic_is_counted,
+          node_stopped_mid_run, lost_node_work_still_counted, bodies_move_to_the_node_of_their_space, peers_stopped_however_the_run_ends, cross_node_traffic_is_counted,
           bad_nodes_are_refused, watchdog_names_stuck_body_elsewhere].
 
 %% Piles, cylinders, a dense gas and obstacles, over parts with contacts
@@ -212,6 +212,35 @@ lose_a_node(Config, Kill) ->
     ?assertNotEqual(none, Killed),
     ?assertMatch({ok, #{restarts := R}} when R >= 1, Result),
     ?assertBitwise(Reference, Frames),
+    ?assertEqual([], wait_for_nodes(Before)),
+    ok.
+
+%% The work of a node lost mid-run still counts: a scene with no contacts
+%% (its efficiency is 1 without faults) over three nodes, one killed a
+%% third of the way: efficiency stays at or below 1 (the counters of the
+%% lost node are those read at the latest checkpoint, from which the run
+%% goes on), and the frames are the reference's.
+lost_node_work_still_counted(_Config) ->
+    {ok, Scene} = rigidwarp:load(rw_test_lib:scenario("parallel_200.json"), #{until => 3000}),
+    Reference = rw_test_lib:reference_frames(Scene),
+    Before = nodes(),
+    Self = self(),
+    OnFrame = fun({frame, 1000, _} = F) ->
+                      [Run] = [P || {_, P, _, _} <- supervisor:which_children(rw_sims_sup)],
+                      [Node | _] = [N || {P, {body, _}} <- rw_run:processes(Run), N <- [node(P)], N =/= node()],
+                      OsPid = erpc:call(Node, os, getpid, []),
+                      _ = os:cmd("kill -9 " ++ OsPid),
+                      Self ! {frame, F};
+                 (F) -> Self ! {frame, F}
+              end,
+    Result = rw_timewarp:run(Scene, #{nodes => 3, schedulers => 1, checkpoint_ms => 10, migrate => false,
+                                      on_frame => OnFrame}),
+    ?assertMatch({ok, #{restarts := 1}}, Result),
+    {ok, #{efficiency := Efficiency, computed_substeps := Computed, committed_substeps := Committed}} = Result,
+    ct:log("efficiency ~p: ~b substeps computed, ~b committed", [Efficiency, Computed, Committed]),
+    ?assert(Computed >= Committed),
+    ?assert(Efficiency =< 1.0),
+    ?assertBitwise(Reference, drain(frame)),
     ?assertEqual([], wait_for_nodes(Before)),
     ok.
 

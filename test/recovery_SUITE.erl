@@ -12,12 +12,15 @@
 -include("rw_test.hrl").
 -export([all/0, suite/0, init_per_suite/1, end_per_suite/1]).
 -export([random_kills_change_no_frame/1, two_kills_at_once/1, past_the_budget_crashes_promptly/1,
-         api_after_crash_and_stop/1, schedulers_are_lent_not_taken/1, unread_frames_keep_whole_checkpoints/1]).
+         api_after_crash_and_stop/1, schedulers_are_lent_not_taken/1, refused_start_reports_no_crash/1,
+         unread_frames_keep_whole_checkpoints/1]).
+%% logger handler (refused_start_reports_no_crash)
+-export([log/2]).
 
 suite() -> [{timetrap, {minutes, 10}}].
 
 all() -> [random_kills_change_no_frame, two_kills_at_once, past_the_budget_crashes_promptly, api_after_crash_and_stop,
-          schedulers_are_lent_not_taken, unread_frames_keep_whole_checkpoints].
+          schedulers_are_lent_not_taken, refused_start_reports_no_crash, unread_frames_keep_whole_checkpoints].
 
 %% Contact-heavy scenes, each over a part where contacts go on all along,
 %% and long enough (0.1-0.2 s of wall time on two cores) for the kills,
@@ -275,3 +278,34 @@ schedulers_are_lent_not_taken(Config) ->
     timer:sleep(50),
     ?assertEqual(Online, erlang:system_info(schedulers_online)),
     ok.
+
+%% A start refused (another run holds another schedulers count) is one
+%% line to its caller and nothing else: no crash report, nothing logged
+%% at error level, no run left.
+refused_start_reports_no_crash(Config) ->
+    {Scene, _} = maps:get("bouncing_50_250", ?config(scenes, Config)),
+    File = Scene#scene.file,
+    case erlang:system_info(schedulers) of
+        1 -> {skip, "one scheduler: nothing to refuse"};
+        _ ->
+            {ok, A} = rigidwarp:start(File, #{until => 600000, schedulers => 1}),
+            Runs = supervisor:which_children(rw_sims_sup),
+            ok = logger:add_handler(refused_start, ?MODULE, #{level => all, config => #{to => self()}}),
+            try
+                {error, Message} = rigidwarp:start(File, #{until => 100, schedulers => 2}),
+                ?assertMatch("schedulers: another simulation runs with 1 " ++ _, Message),
+                ?assertEqual(nomatch, string:find(Message, "\n")),
+                timer:sleep(200),
+                Logged = [E || {logged, E} <- drain_all()],
+                ct:log("logged: ~p", [Logged]),
+                ?assertEqual([], [E || #{level := L} = E <- Logged, logger:compare_levels(L, error) =/= lt]),
+                ?assertEqual(Runs, supervisor:which_children(rw_sims_sup))
+            after
+                _ = logger:remove_handler(refused_start),
+                ok = rigidwarp:stop(A)
+            end
+    end.
+
+log(Event, #{config := #{to := Pid}}) -> Pid ! {logged, Event}.
+
+drain_all() -> receive M -> [M | drain_all()] after 0 -> [] end.

@@ -248,6 +248,10 @@ gvt(Sim) -> with_sim(Sim, fun({rw_sim, Run, _}) -> rw_run:gvt(Run) end).
 
 %% @doc From now on, receive `{rw_frame, _, Frame}' for every new frame, in
 %% order and once, however often the simulation restarts after faults.
+%% The simulation waits for its subscribers: it runs at most a few dozen
+%% frames (fewer of many bodies) ahead of the messages waiting in a
+%% subscriber's mailbox, and goes on as it reads them. A subscriber
+%% waiting in await/2 is not waited for.
 -spec subscribe(sim()) -> ok | {error, string()}.
 subscribe(Sim) -> with_sim(Sim, fun({rw_sim, Run, _}) -> rw_run:subscribe(Run, self(), frames, false) end).
 
@@ -256,7 +260,13 @@ subscribe(Sim) -> with_sim(Sim, fun({rw_sim, Run, _}) -> rw_run:subscribe(Run, s
 %% (`{error, {crashed, Who, Reason}}').
 -spec await(sim(), timeout()) -> ok | timeout | {error, string() | {crashed, rw_run:who(), term()}}.
 await(Sim, Timeout) when Timeout =:= infinity; is_integer(Timeout), Timeout >= 0 ->
-    with_sim(Sim, fun(H) -> await_end(H, Timeout) end);
+    %% a subscriber reads no frame until the end: not waited for meanwhile
+    with_sim(Sim, fun({rw_sim, Run, _} = H) ->
+                          ok = rw_run:awaiting(Run, self(), true),
+                          try await_end(H, Timeout)
+                          after rw_run:awaiting(Run, self(), false)
+                          end
+                  end);
 await(Sim, Timeout) ->
     with_sim(Sim, fun(_) ->
                           {error, lists:flatten(io_lib:format("timeout must be infinity or ms >= 0, got ~0p",

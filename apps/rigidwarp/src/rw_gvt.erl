@@ -15,11 +15,16 @@
 %% ({regroup, S, Move}); GVT does not reach S before each of them has
 %% answered (rolled back to S if it was past it, and stopped there).
 %%
+%% Backpressure: GVT passes no sync point once it has reached the
+%% allowance the run keeps in an atomic (rw_flow: what the run's
+%% subscribers have not handled yet bounds it), and goes on when the run
+%% sends {allow, Tick}.
+%%
 %% Messages it takes: {complete, T} (rw_commits), {wake_at, Pid, At},
-%% {regroup_ack, S, Pid}; it sends {gvt, G} to whom asked to be woken, and
-%% to its run (rw_run) {rw_frame, Gvt, Frame} or {rw_frame_time, Gvt, Ms}
-%% for every frame, {rw_checkpoint, Gvt, Checkpoint} every checkpoint_ms of
-%% wall time, and {rw_done, Gvt, EndMs}.
+%% {regroup_ack, S, Pid}, {allow, Tick}; it sends {gvt, G} to whom asked
+%% to be woken, and to its run (rw_run) {rw_frame, Gvt, Frame} or
+%% {rw_frame_time, Gvt, Ms} for every frame, {rw_checkpoint, Gvt,
+%% Checkpoint} every checkpoint_ms of wall time, and {rw_done, Gvt, EndMs}.
 -module(rw_gvt).
 -behaviour(gen_server).
 -include("rigidwarp.hrl").
@@ -30,9 +35,10 @@
 %% run: told of every frame (the frame itself once send_frames/1 asks, else
 %% its time), of checkpoints and of the end; ring_size: frames kept in the
 %% ring; checkpoint_ms: wall time between checkpoints; sweeper: forgets
-%% the records this process is done with (rw_sweeper).
+%% the records this process is done with (rw_sweeper); flow: the
+%% allowance, in slot 1 (rw_flow), none without.
 -type options() :: #{run => pid(), frames => boolean(), ring_size => pos_integer(),
-                     checkpoint_ms => non_neg_integer(), sweeper := pid()}.
+                     checkpoint_ms => non_neg_integer(), sweeper := pid(), flow => atomics:atomics_ref()}.
 
 %% A simulation over several nodes: the GVT processes of the sites, those
 %% that hold bodies (whose reports GVT waits for), the site of every body's
@@ -74,6 +80,7 @@
     %% sync points passed since GVT was last published, newest first
     passed = [] :: [non_neg_integer()],
     buckets_told = -1 :: integer(),          % the GVT the buckets last heard of
+    flow :: atomics:atomics_ref() | undefined,   % the allowance (rw_flow), written by the run
     %% on several nodes (rw_gvt_site): none on one
     multi = none :: none | #m{}
 }).
@@ -121,7 +128,7 @@ init({#sim{scene = #scene{spheres = Spheres, model = #model{gravity = Gravity}},
     Every = maps:get(checkpoint_ms, Opts, ?CHECKPOINT_MS),
     {ok, #s{sim = Sim, run = maps:get(run, Opts, undefined), frames = maps:get(frames, Opts, false),
             ring_size = maps:get(ring_size, Opts, 1024), sweeper = maps:get(sweeper, Opts),
-            checkpoint_ms = Every,
+            checkpoint_ms = Every, flow = maps:get(flow, Opts, undefined),
             checkpoint_due = erlang:monotonic_time(millisecond) + Every,
             radii = maps:from_list([{I, R} || #sphere{idx = I, radius = R} <- Spheres]),
             groups = rw_regroup:new(Idxs, Max, Mode, Gravity =/= undefined)}}.
@@ -160,6 +167,8 @@ info({regroup_ack, At, Pid}, #s{unready = U} = S) ->
              _ -> S#s{unready = U#{At := Left}}
          end,
     {noreply, advance(S1)};
+info({allow, _Tick}, S) ->
+    {noreply, advance(S)};
 info({wake_at, Pid, At}, #s{gvt = G} = S) when At =< G ->
     ok = rw_trace:send(Pid, {gvt, G}),
     {noreply, S};
@@ -218,8 +227,9 @@ done(#s{sim = #sim{end_t = End}} = S) ->
 
 advance_over(#s{complete = C, sim = #sim{sync = Cal} = Sim, unready = U, gvt = G} = S) ->
     Next = rw_sync:after_gvt(G, Cal),
-    %% not up to a regroup point whose entities have not all stopped there
-    Held = map_size(U) > 0 andalso Next >= lists:min(maps:keys(U)),
+    %% not up to a regroup point whose entities have not all stopped there,
+    %% nor past the allowance
+    Held = (map_size(U) > 0 andalso Next >= lists:min(maps:keys(U))) orelse flow_held(G, S),
     case (not Held) andalso maps:take(Next, C) of
         {true, C1} ->
             %% An entity told to stop at a regroup point rolls back to it and
@@ -364,7 +374,7 @@ tell(Moves, #s{multi = M} = S) ->
 %% of them have reported whole, up to the first regroup point, hold or the
 %% end: one batch at a time.
 confirm(#s{multi = #m{confirming = none} = M, gvt = G, sim = #sim{sync = Cal}} = S) ->
-    case confirmable(rw_sync:after_gvt(G, Cal), S) of
+    case confirmable(G, rw_sync:after_gvt(G, Cal), S) of
         [] ->
             S;
         Ts ->
@@ -376,8 +386,9 @@ confirm(#s{multi = #m{confirming = none} = M, gvt = G, sim = #sim{sync = Cal}} =
     end;
 confirm(S) -> S.
 
-confirmable(Next, #s{sim = #sim{sync = Cal, end_t = End}, unready = U, multi = #m{reported = Reported, voters = Voters}} = S) ->
-    Held = map_size(U) > 0 andalso Next >= lists:min(maps:keys(U)),
+confirmable(Prev, Next, #s{sim = #sim{sync = Cal, end_t = End}, unready = U,
+                          multi = #m{reported = Reported, voters = Voters}} = S) ->
+    Held = (map_size(U) > 0 andalso Next >= lists:min(maps:keys(U))) orelse flow_held(Prev, S),
     Whole = case Reported of
                 #{Next := By} -> lists:all(fun(V) -> maps:is_key(V, By) end, Voters);
                 #{} -> false
@@ -391,7 +402,7 @@ confirmable(Next, #s{sim = #sim{sync = Cal, end_t = End}, unready = U, multi = #
             %% where nothing can
             case regroup_point(Next, S) andalso not quiet_at(Next, S) of
                 true -> [Next];
-                false -> [Next | confirmable(rw_sync:after_gvt(Next, Cal), S)]
+                false -> [Next | confirmable(Next, rw_sync:after_gvt(Next, Cal), S)]
             end
     end.
 
@@ -477,6 +488,11 @@ publish(_G0, #s{gvt = G, sim = #sim{end_t = End} = Sim, multi = M, passed = Pass
              _ -> ok
          end,
     S2.
+
+%% GVT at G (or a batch up to G) goes no further: the run's subscribers
+%% have not handled enough of the frames before it.
+flow_held(_G, #s{flow = undefined}) -> false;
+flow_held(G, #s{flow = Flow}) -> rw_flow:held(G, atomics:get(Flow, 1)).
 
 %% The bodies' processes (rw_sim_sup wrote them before the simulation
 %% started).

@@ -18,22 +18,34 @@
 %% times); {rw_checkpoint, Run, Checkpoint} if they asked; {rw_done, Run,
 %% EndMs}; {rw_crashed, Run, Who, Reason}. A subscriber of none hears only
 %% of the end and of a crash.
+%%
+%% Backpressure (rw_flow): GVT stops at an allowance instead of running
+%% ahead of the subscribers of frames or times. What a subscriber has not
+%% handled yet is what it has not acknowledged (ack/1: the subscribers
+%% named in the acks option, rw_timewarp:run/2's), else what waits in its
+%% mailbox (a process on this node; one on another node, or one waiting
+%% in rigidwarp:await/2 for the end, holds nothing). The allowance lives in
+%% an atomic that every tree of the run reads, so it survives restarts;
+%% while GVT is held there, the subscribers are looked at again every
+%% few ms.
 -module(rw_run).
 -behaviour(gen_server).
 -include("rigidwarp.hrl").
--export([start/2, stop/1, is_run/1, subscribe/4, status/1, stats/1, gvt/1, ring/1, scene/1, processes/1, nodes/1]).
+-export([start/2, stop/1, is_run/1, subscribe/4, ack/1, awaiting/3, status/1, stats/1, gvt/1, ring/1, scene/1, processes/1,
+         nodes/1]).
 -export([start_link/2, init/1, handle_call/3, handle_cast/2, handle_info/2, terminate/2]).
 -export_type([options/0, status/0, who/0, subscription/0]).
 
 %% The simulation's options (rw_sim, rw_sim_sup), and: buckets; schedulers
 %% (rw_schedulers); the restart budget; checkpoint_ms, wall time between
 %% checkpoints; from, the checkpoint to start from; subscribers from the
-%% start.
+%% start; acks, those of them that acknowledge every frame or time they
+%% have handled (ack/1).
 -type options() :: #{buckets => pos_integer(), schedulers => pos_integer(), nodes => rw_nodes:spec() | rw_nodes:nodes(),
                      migrate => boolean(),
                      max_restarts => non_neg_integer(), restart_period_ms => pos_integer(),
                      checkpoint_ms => non_neg_integer(), from => rw_reference:checkpoint(),
-                     subscribers => [subscription()], atom() => term()}.
+                     subscribers => [subscription()], acks => [pid()], atom() => term()}.
 -type subscription() :: {pid(), none | times | frames, Checkpoints :: boolean()}.
 -type who() :: rw_sim_sup:who() | supervisor | stalled.
 -type status() :: running | done | {crashed, who(), term()}.
@@ -41,6 +53,8 @@
 -define(DEFAULT_BUCKETS, 64).
 -define(DEFAULT_MAX_RESTARTS, 5).
 -define(DEFAULT_RESTART_PERIOD_MS, 10000).
+%% How often the subscribers are looked at while GVT is held for them.
+-define(FLOW_RECHECK_MS, 10).
 %% The options the simulation's tree takes.
 -define(SIM_KEYS, [groups, group_max, regroup_every, grouping, profile, delay, watchdog_ms, ring_size,
                    checkpoint_ms, trace, read_frames, speculation_mb]).
@@ -55,6 +69,15 @@
     subs = [] :: [subscription()],
     checkpoint :: rw_reference:checkpoint() | none,
     delivered = -1 :: integer(),              % the last frame delivered, in ticks
+    %% backpressure (rw_flow): the allowance, as written in the atomic the
+    %% trees read; the messages each acknowledging subscriber has not
+    %% acknowledged yet; the subscribers waiting for the end; the timer
+    %% that looks at the subscribers again while GVT is held
+    flow :: atomics:atomics_ref(),
+    allowance :: rw_flow:allowance(),
+    unacked = #{} :: #{pid() => non_neg_integer()},
+    awaiting = #{} :: #{pid() => true},
+    recheck = none :: none | reference(),
     status = running :: status(),
     sup = none :: pid() | none,
     sim :: #sim{} | undefined,
@@ -70,6 +93,9 @@
     %% since, and the sites of the tree as it stands
     remote = #{} :: #{atom() => integer()},
     sites = [] :: [pid()],
+    %% the counters of each site of the tree as last read, for a site that
+    %% cannot answer any more (its node is lost)
+    seen = #{} :: #{pid() => #{atom() => integer()}},
     start = 0 :: non_neg_integer(),           % where this run began, in ticks (its committed work counts from there)
     started :: integer(),                     % monotonic ms
     ended = none :: none | integer(),
@@ -87,9 +113,9 @@ start(Scene, Opts) ->
                 {ok, Run} ->
                     ok = rw_nodes:unlink(Nodes),
                     {ok, Run};
-                Error ->
+                {error, Reason} ->
                     ok = rw_nodes:stop(Nodes),
-                    Error
+                    {error, refused(Reason)}
             end;
         {error, Message} ->
             {error, {nodes, Message}}
@@ -112,6 +138,19 @@ is_run(_) -> false.
 
 -spec subscribe(pid(), pid(), none | times | frames, boolean()) -> ok | {error, string()}.
 subscribe(Run, Pid, What, Checkpoints) -> gen_server:call(Run, {subscribe, {Pid, What, Checkpoints}}).
+
+%% The caller, named in the acks option, has handled one more frame or
+%% time message of Run.
+-spec ack(pid()) -> ok.
+ack(Run) ->
+    Run ! {rw_ack, self()},
+    ok.
+
+%% Subscriber Pid waits for the end of Run (true) and reads nothing until
+%% then, so Run does not wait for it, or no longer waits for the end
+%% (false).
+-spec awaiting(pid(), pid(), boolean()) -> ok.
+awaiting(Run, Pid, Waiting) -> gen_server:cast(Run, {awaiting, Pid, Waiting}).
 
 -spec status(pid()) -> status().
 status(Run) -> gen_server:call(Run, status).
@@ -145,26 +184,37 @@ stats(Run) -> gen_server:call(Run, stats).
 -spec start_link(#scene{}, options()) -> {ok, pid()} | {error, term()}.
 start_link(Scene, Opts) -> gen_server:start_link(?MODULE, {Scene, Opts}, []).
 
--spec init({#scene{}, options()}) -> {ok, #r{}} | {stop, term()}.
+%% A run that cannot start stops with {shutdown, Reason}: its caller gets
+%% the reason, and nothing is reported as a crash.
+-spec init({#scene{}, options()}) -> {ok, #r{}} | {stop, {shutdown, term()}}.
 init({Scene, #{nodes := Nodes} = Opts}) ->
     process_flag(trap_exit, true),
     ok = rw_nodes:link(Nodes),
     case schedulers(Opts) of
         ok -> init(Scene, Opts, Nodes);
-        {error, Message} -> {stop, {schedulers, Message}}
+        {error, Message} -> {stop, {shutdown, {schedulers, Message}}}
     end.
 
 init(Scene, Opts, Nodes) ->
-    R = #r{nodes = Nodes, scene = Scene, opts = maps:merge(#{ring_size => ring_size(Scene)}, Opts),
-           buckets = buckets(Scene, Opts),
-           records = ets:new(rw_records, [ordered_set, public, {write_concurrency, true}]),
-           ring = ets:new(rw_frames, [set, public, {read_concurrency, true}]),
-           stats = rw_stats:new(), subs = maps:get(subscribers, Opts, []),
-           checkpoint = maps:get(from, Opts, none), started = erlang:monotonic_time(millisecond)},
-    case incarnate(R#r{start = restart_tick(R)}) of
+    Flow = atomics:new(1, [{signed, true}]),
+    ok = atomics:put(Flow, 1, rw_flow:unbounded()),
+    R0 = #r{nodes = Nodes, scene = Scene, opts = maps:merge(#{ring_size => ring_size(Scene)}, Opts),
+            buckets = buckets(Scene, Opts),
+            records = ets:new(rw_records, [ordered_set, public, {write_concurrency, true}]),
+            ring = ets:new(rw_frames, [set, public, {read_concurrency, true}]),
+            stats = rw_stats:new(), subs = maps:get(subscribers, Opts, []),
+            flow = Flow, allowance = rw_flow:unbounded(),
+            unacked = maps:from_list([{Pid, 0} || Pid <- maps:get(acks, Opts, [])]),
+            checkpoint = maps:get(from, Opts, none), started = erlang:monotonic_time(millisecond)},
+    %% the first tree starts bounded
+    R = flow(R0#r{start = restart_tick(R0)}),
+    case incarnate(R) of
         {ok, R1} -> {ok, R1};
-        {error, Reason} -> ok = rw_nodes:stop(Nodes), _ = release_schedulers(R), {stop, Reason}
+        {error, Reason} -> ok = rw_nodes:stop(Nodes), _ = release_schedulers(R), {stop, {shutdown, Reason}}
     end.
+
+refused({shutdown, Reason}) -> Reason;
+refused(Reason) -> Reason.
 
 %% The frames the ring keeps unless asked otherwise (rw_ring:frames_kept/2):
 %% the latest ring_frames (the application's environment, 1024 by
@@ -197,7 +247,7 @@ incarnate(#r{scene = Scene0, checkpoint = Checkpoint, opts = Opts} = R) ->
             end,
     Nodes = rw_nodes:alive(R#r.nodes),
     SimOpts = (maps:with(?SIM_KEYS, Opts))#{run => self(), frames => lists:keymember(frames, 2, R#r.subs),
-                                            nodes => Nodes},
+                                            nodes => Nodes, flow => R#r.flow},
     case rw_sim_sup:start_link(Scene, R#r.buckets, #{records => R#r.records, ring => R#r.ring}, R#r.stats, SimOpts) of
         {ok, Sup, Sim, Named} ->
             {ok, R#r{sup = Sup, sim = Sim, sites = [P || {P, {site, _}} <- Named], placed_on = Nodes,
@@ -210,7 +260,8 @@ incarnate(#r{scene = Scene0, checkpoint = Checkpoint, opts = Opts} = R) ->
 teardown(#r{sup = none} = R) -> R;
 teardown(#r{sup = Sup, watched = W} = R0) ->
     _ = [erlang:demonitor(Ref, [flush]) || Ref <- maps:keys(W)],
-    R = R0#r{remote = add_counts(R0#r.remote, site_counts(R0)), sites = []},
+    {Counts, _, _} = site_stats(R0),
+    R = R0#r{remote = add_counts(R0#r.remote, Counts), sites = [], seen = #{}},
     ok = rw_sim_parts:stop(Sup),
     receive {'EXIT', Sup, _} -> ok after 0 -> ok end,
     %% (the next tree's bodies publish their LVTs anew: read them afresh)
@@ -224,7 +275,7 @@ handle_call({subscribe, {Pid, What, _} = Sub}, _From, #r{subs = Subs, sim = Sim}
             true -> rw_gvt:send_frames(Sim#sim.gvt);
             false -> ok
         end,
-    {reply, ok, R#r{subs = [Sub | lists:keydelete(Pid, 1, Subs)]}};
+    {reply, ok, flow(R#r{subs = [Sub | lists:keydelete(Pid, 1, Subs)]})};
 handle_call(status, _From, R) ->
     {reply, R#r.status, R};
 handle_call(gvt, _From, R) ->
@@ -242,20 +293,31 @@ handle_call(stats, _From, R) ->
     {reply, Stats, R1}.
 
 -spec handle_cast(term(), #r{}) -> {noreply, #r{}}.
+handle_cast({awaiting, Pid, true}, #r{awaiting = A} = R) ->
+    {noreply, flow(R#r{awaiting = A#{Pid => true}})};
+handle_cast({awaiting, Pid, false}, #r{awaiting = A} = R) ->
+    {noreply, flow(R#r{awaiting = maps:remove(Pid, A)})};
 handle_cast(_Msg, R) -> {noreply, R}.
 
 -spec handle_info(term(), #r{}) -> {noreply, #r{}}.
 handle_info({rw_frame, _Gvt, {frame, Ms, _} = Frame}, R) ->
-    {noreply, deliver(Ms, Frame, R)};
+    {noreply, flow(deliver(Ms, Frame, R))};
 handle_info({rw_frame_time, _Gvt, Ms}, R) ->
-    {noreply, deliver(Ms, none, R)};
+    {noreply, flow(deliver(Ms, none, R))};
+handle_info({rw_ack, Pid}, #r{unacked = U} = R) ->
+    case U of
+        #{Pid := N} -> {noreply, flow(R#r{unacked = U#{Pid := max(0, N - 1)}})};
+        #{} -> {noreply, R}
+    end;
+handle_info(flow_recheck, R) ->
+    {noreply, flow(R#r{recheck = none})};
 handle_info({rw_checkpoint, _Gvt, {checkpoint, T, _, _} = C}, #r{checkpoint = Old} = R) ->
     %% a checkpoint from a tree stopped since is committed all the same
     case Old of
         {checkpoint, OldT, _, _} when OldT >= T -> {noreply, R};
         _ ->
             _ = [Pid ! {rw_checkpoint, self(), C} || {Pid, _, true} <- R#r.subs],
-            {noreply, maybe_migrate(R#r{checkpoint = C})}
+            {noreply, maybe_migrate(look_at_sites(R#r{checkpoint = C}))}
     end;
 handle_info({rw_done, _Gvt, EndMs}, #r{status = running} = R) ->
     R1 = teardown(R),
@@ -294,14 +356,54 @@ deliver(Ms, Frame, #r{delivered = Last, scene = Scene} = R) ->
     case T > Last of
         true ->
             Self = self(),
-            _ = [case What of
-                     frames when Frame =/= none -> Pid ! {rw_frame, Self, Frame};
-                     times -> Pid ! {rw_frame_time, Self, Ms};
-                     _ -> ok
-                 end || {Pid, What, _} <- R#r.subs],
-            R#r{delivered = T};
+            Sent = [case What of
+                        frames when Frame =/= none -> Pid ! {rw_frame, Self, Frame}, Pid;
+                        times -> Pid ! {rw_frame_time, Self, Ms}, Pid;
+                        _ -> none
+                    end || {Pid, What, _} <- R#r.subs],
+            Unacked = lists:foldl(fun(Pid, U) when is_map_key(Pid, U) -> maps:update_with(Pid, fun(N) -> N + 1 end, U);
+                                     (_, U) -> U
+                                  end, R#r.unacked, Sent),
+            R#r{delivered = T, unacked = Unacked};
         false ->
             R
+    end.
+
+%% Backpressure: the allowance from what the subscribers of frames or
+%% times have not handled yet (rw_flow), written where the tree's GVT
+%% process and watchdog read it, and the GVT process told when it moves;
+%% while GVT is held there, a look again in a few ms.
+flow(#r{status = running, scene = #scene{frame = F, spheres = Spheres}, allowance = Old} = R) ->
+    Waited = [{What, Backlog} || {Pid, What, _} <- R#r.subs, What =/= none, {ok, Backlog} <- [backlog(Pid, R)]],
+    Window = rw_flow:window(length(Spheres), case lists:keymember(frames, 1, Waited) of true -> frames; false -> times end),
+    Base = max(R#r.delivered, R#r.start),
+    New = rw_flow:allowance(Base, [B || {_, B} <- Waited], Window, F),
+    R1 = case rw_flow:move(Old, New, Window, F) of
+             true ->
+                 ok = atomics:put(R#r.flow, 1, New),
+                 _ = [Gvt ! {allow, New} || R#r.sup =/= none, #sim{gvt = Gvt} <- [R#r.sim]],
+                 R#r{allowance = New};
+             false ->
+                 R
+         end,
+    case rw_flow:held(Base, R1#r.allowance) andalso R1#r.recheck =:= none of
+        true -> R1#r{recheck = erlang:send_after(?FLOW_RECHECK_MS, self(), flow_recheck)};
+        false -> R1
+    end;
+flow(R) -> R.
+
+%% The messages subscriber Pid has not handled yet: those it has not
+%% acknowledged, or those in its mailbox (which may hold others too); none
+%% to wait for if it is gone, on another node or waiting for the end.
+backlog(Pid, #r{unacked = U, awaiting = A}) ->
+    case is_map_key(Pid, A) orelse node(Pid) =/= node() orelse erlang:process_info(Pid, message_queue_len) of
+        true -> none;
+        undefined -> none;
+        {message_queue_len, Queued} ->
+            case U of
+                #{Pid := N} -> {ok, N};
+                #{} -> {ok, Queued}
+            end
     end.
 
 %% A process of the tree died (or GVT stalled): restart from the latest
@@ -331,21 +433,28 @@ fault(Who, Reason, #r{opts = Opts} = R0) ->
     end.
 
 %% The counters of the sites of the tree (on several nodes): those of the
-%% sites on other nodes, and what every node has sent to the others.
-site_counts(R) -> element(1, site_stats(R)).
+%% sites on other nodes, and what every node has sent to the others; the
+%% highest LVT of their bodies; and the run with the counters read. A site
+%% that cannot answer (its node is lost) counts as last read: at the
+%% latest checkpoint at least (look_at_sites/1), so that the work redone
+%% from there is never counted as done once only, and efficiency stays at
+%% or below 1.
+site_stats(#r{sites = Sites, seen = Seen} = R) ->
+    lists:foldl(fun(Site, {Acc, Lead, Ri}) ->
+                        {Counts, L} = try rw_site:stats(Site)
+                                      catch exit:_ -> {maps:get(Site, Seen, #{}), 0}
+                                      end,
+                        Mine = case node(Site) =:= node() of
+                                   true -> maps:with([dist_messages, dist_bytes], Counts);
+                                   false -> Counts
+                               end,
+                        {add_counts(Acc, Mine), max(Lead, L), Ri#r{seen = (Ri#r.seen)#{Site => Counts}}}
+                end, {#{}, 0, R}, Sites).
 
-%% ... and the highest LVT of their bodies.
-site_stats(#r{sites = Sites}) ->
-    lists:foldl(fun(Site, {Acc, Lead}) ->
-                        try rw_site:stats(Site) of
-                            {Counts, L} when node(Site) =:= node() ->
-                                {add_counts(Acc, maps:with([dist_messages, dist_bytes], Counts)), max(Lead, L)};
-                            {Counts, L} ->
-                                {add_counts(Acc, Counts), max(Lead, L)}
-                        catch
-                            exit:_ -> {Acc, Lead}
-                        end
-                end, {#{}, 0}, Sites).
+%% Read the sites' counters at a checkpoint, the point a restart goes back
+%% to: every body's work up to it is counted there.
+look_at_sites(#r{sites = []} = R) -> R;
+look_at_sites(R) -> element(3, site_stats(R)).
 
 take(Key, Map) ->
     case maps:take(Key, Map) of
@@ -411,9 +520,11 @@ tick(Ms, #scene{tick_us = U}) -> round(Ms * 1000 / U).
 stats_of(#r{scene = #scene{spheres = Spheres, substep = Dt, duration = End, stride = Asked}, stats = Ref,
             sim = Sim, started = T0, start = Start} = R) ->
     Profile = case Sim of #sim{profile = P} -> P; undefined -> false end,
-    {SiteCounts, SiteLead} = site_stats(R),
-    Raw = add_counts(add_counts(rw_stats:read(Ref, Profile), R#r.remote), SiteCounts),
+    %% GVT before the counters: a body counts its work before it commits
+    %% it, so the work up to G is all counted by then
     G = gvt_tick(R),
+    {SiteCounts, SiteLead, R0} = site_stats(R),
+    Raw = add_counts(add_counts(rw_stats:read(Ref, Profile), R#r.remote), SiteCounts),
     N = length(Spheres),
     Committed = N * (max(G, Start) - Start) div Dt,
     Computed = maps:get(computed_substeps, Raw),
@@ -449,7 +560,7 @@ stats_of(#r{scene = #scene{spheres = Spheres, substep = Dt, duration = End, stri
          %% run's memory budget for speculation (rw_speculation); throttled
          %% also when the memory guard held bodies back
          stride_ms => ms(Asked, R), effective_stride_ms => ms(stride(Sim, Asked), R),
-         throttled => stride(Sim, Asked) < Asked orelse maps:get(memory_holds, Raw) > 0}, R#r{lead = LeadRead}}.
+         throttled => stride(Sim, Asked) < Asked orelse maps:get(memory_holds, Raw) > 0}, R0#r{lead = LeadRead}}.
 
 stride(#sim{scene = #scene{stride = Stride}}, _Asked) -> Stride;
 stride(undefined, Asked) -> Asked.

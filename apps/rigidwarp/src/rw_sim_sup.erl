@@ -30,9 +30,11 @@
 %% The context's options (rw_sim), and run: the rw_run process, told of
 %% frames, checkpoints, the end and stalls; frames, ring_size,
 %% checkpoint_ms (rw_gvt); watchdog_ms: how long GVT may stand still
-%% before the watchdog speaks.
+%% before the watchdog speaks; flow: the run's allowance (rw_flow), which
+%% the GVT process keeps to and the watchdog knows of.
 -type options() :: #{nodes => [node()], run => pid(), frames => boolean(), ring_size => pos_integer(),
-                     checkpoint_ms => non_neg_integer(), watchdog_ms => pos_integer(), atom() => term()}.
+                     checkpoint_ms => non_neg_integer(), watchdog_ms => pos_integer(), flow => atomics:atomics_ref(),
+                     atom() => term()}.
 %% A process of the simulation, as a fault report names it.
 -type who() :: tables | {bucket, non_neg_integer()} | gvt | sweeper | watchdog | {body, binary()} | memory_guard
              | {site, node()} | {site_gvt, node()}.
@@ -69,8 +71,7 @@ one_node(Sup, #scene{model = M, substep = Dt, spheres = Spheres, initial = Initi
     Sim0 = rw_sim:new(Scene, Tables, list_to_tuple([P || {_, P} <- Buckets]), Stats, Opts),
     {Sweeper, Gvt} = start_gvt(Sup, Sim0, Tables, Opts),
     Sim = Sim0#sim{gvt = Gvt},
-    {ok, Watchdog} = child(Sup, rw_sim_parts:worker(watchdog, rw_watchdog, [Sim, maps:get(run, Opts, undefined),
-                                                               maps:get(watchdog_ms, Opts, 10000)])),
+    {ok, Watchdog} = child(Sup, watchdog(Sim, Opts)),
     {ok, BodySup} = child(Sup, rw_sim_parts:body_pool()),
     Bodies = rw_sim_parts:start_bodies(BodySup, rw_sim:for_bodies(Sim), lists:zip(Spheres, Initial)),
     %% (started before the bodies go: it measures the memory the run
@@ -105,8 +106,7 @@ nodes(Sup, Nodes, #scene{model = M, substep = Dt, spheres = Spheres, initial = I
     Sim0 = (rw_sim:new(Scene, Tables, AllBuckets, Stats, Opts#{read_frames => true}))#sim{placement = Place},
     {Sweeper, Gvt} = start_gvt(Sup, Sim0, Tables, Opts),
     Sim = Sim0#sim{gvt = Gvt},
-    {ok, Watchdog} = child(Sup, rw_sim_parts:worker(watchdog, rw_watchdog, [Sim, maps:get(run, Opts, undefined),
-                                                               maps:get(watchdog_ms, Opts, 10000)])),
+    {ok, Watchdog} = child(Sup, watchdog(Sim, Opts)),
     Shares = rw_place:split([{{Sphere, St}, P} || {Sphere, #st{p = P} = St} <- lists:zip(Spheres, Initial)], Place),
     Started = [{I, rw_site:bodies(Pid, rw_sim:portable(Sim), Share, Gvt)}
                || {{I, _, Pid, _}, Share} <- lists:zip(Sites, Shares)],
@@ -126,11 +126,15 @@ nodes(Sup, Nodes, #scene{model = M, substep = Dt, spheres = Spheres, initial = I
 
 child(Sup, Spec) -> supervisor:start_child(Sup, Spec).
 
+watchdog(Sim, Opts) ->
+    rw_sim_parts:worker(watchdog, rw_watchdog, [Sim, maps:get(run, Opts, undefined), maps:get(watchdog_ms, Opts, 10000),
+                                                maps:get(flow, Opts, undefined)]).
+
 %% The sweeper, then the GVT process that hands it the records it is done
 %% with.
 start_gvt(Sup, Sim, Tables, Opts) ->
     {ok, Sweeper} = child(Sup, rw_sim_parts:worker(sweeper, rw_sweeper, [maps:get(records, Tables)])),
-    GvtOpts = (maps:with([run, frames, ring_size, checkpoint_ms], Opts))#{sweeper => Sweeper},
+    GvtOpts = (maps:with([run, frames, ring_size, checkpoint_ms, flow], Opts))#{sweeper => Sweeper},
     {ok, Gvt} = child(Sup, rw_sim_parts:worker(gvt, rw_gvt, [Sim, GvtOpts])),
     {Sweeper, Gvt}.
 

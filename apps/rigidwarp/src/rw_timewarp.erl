@@ -11,8 +11,10 @@
 -type handle() :: {rw_sim, pid(), ets:tid()}.
 -type options() :: #{buckets => pos_integer(), schedulers => pos_integer(),
                      %% the owner hears {rw_done, Run, EndMs} and {rw_crashed, Run, Who,
-                     %% Reason}, and of every frame or its time if it subscribes
-                     owner => pid(), subscribe => none | frames | times,
+                     %% Reason}, and of every frame or its time if it subscribes;
+                     %% with ack, it acknowledges each of those it has handled
+                     %% (rw_run:ack/1), else the run reads how many wait in its mailbox
+                     owner => pid(), subscribe => none | frames | times, ack => boolean(),
                      groups => boolean(), group_max => pos_integer(), speculation_mb => pos_integer(),
                      %% (tests) regroup points this many strides apart, groups of
                      %% all bodies near each other however they move
@@ -40,7 +42,8 @@ start(Scene, Opts) ->
     {ok, _} = application:ensure_all_started(rigidwarp),
     Owner = maps:get(owner, Opts, self()),
     Sub = {Owner, maps:get(subscribe, Opts, none), maps:is_key(on_checkpoint, Opts)},
-    case rw_run:start(Scene, (maps:with(?RUN_KEYS, Opts))#{subscribers => [Sub]}) of
+    Acks = [Owner || maps:get(ack, Opts, false)],
+    case rw_run:start(Scene, (maps:with(?RUN_KEYS, Opts))#{subscribers => [Sub], acks => Acks}) of
         {ok, Run} -> {ok, {rw_sim, Run, rw_run:ring(Run)}};
         {error, _} = Error -> Error
     end.
@@ -58,6 +61,10 @@ stats({rw_sim, Run, _}) -> rw_run:stats(Run).
 %% Run to the end, calling on_frame for every committed frame in order
 %% (without on_frame, the frames stay in the engine: only their times come
 %% here, for on_progress and the count) and on_checkpoint for checkpoints.
+%% The run goes no further ahead of on_frame than a window of frames
+%% (rw_flow): this process acknowledges each frame once on_frame and
+%% on_progress have returned, so a slow on_frame holds GVT and frames do
+%% not pile up in its mailbox, nor do messages it sends itself count.
 %% {rw_interrupt, Signal} sent to the caller stops the run:
 %% {error, {interrupted, Signal, LastFrameMs}} (undefined before the first frame). The run is stopped however
 %% this returns, a callback's exception included.
@@ -68,7 +75,8 @@ run(Scene, Opts) ->
     %% only the latest frame's records are kept, not the last 1024 frames'
     %% (deleting those at the end would count in the run's wall time), and
     %% without on_frame only those the engine reads itself
-    case start(Scene, maps:merge(#{ring_size => 1, read_frames => What =:= frames}, Opts#{owner => self(), subscribe => What})) of
+    case start(Scene, maps:merge(#{ring_size => 1, read_frames => What =:= frames},
+                                 Opts#{owner => self(), subscribe => What, ack => true})) of
         {ok, {rw_sim, Run, _} = H} ->
             Calls = #{frame => maps:get(on_frame, Opts, fun(_) -> ok end),
                       checkpoint => maps:get(on_checkpoint, Opts, fun(_) -> ok end),
@@ -99,9 +107,11 @@ collect(Run, MRef, #{frame := OnFrame, time := OnTime, checkpoint := OnCheckpoin
         {rw_frame, Run, {frame, T, _} = Frame} ->
             OnFrame(Frame),
             OnTime(T),
+            ok = rw_run:ack(Run),
             collect(Run, MRef, Calls, N + 1, T);
         {rw_frame_time, Run, T} ->
             OnTime(T),
+            ok = rw_run:ack(Run),
             collect(Run, MRef, Calls, N + 1, T);
         {rw_checkpoint, Run, Checkpoint} ->
             OnCheckpoint(Checkpoint),

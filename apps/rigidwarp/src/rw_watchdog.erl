@@ -4,28 +4,30 @@
 %% naming every body's phase, LVT and awaited acknowledgements, the bodies
 %% holding GVT back first ({rw_stalled, GvtPid, GvtMs, Report}); then it
 %% stops watching. It reads GVT where the entities do (#sim.gvt_now) and
-%% asks nothing of the GVT process.
+%% asks nothing of the GVT process. GVT held at the allowance (rw_flow)
+%% waits for the run's subscribers, not for a body: no stall.
 -module(rw_watchdog).
 -behaviour(gen_server).
 -include("rigidwarp.hrl").
--export([start_link/3]).
+-export([start_link/4]).
 -export([init/1, handle_call/3, handle_cast/2, handle_info/2]).
 
 -record(w, {
     sim :: #sim{},
     owner :: pid() | undefined,
     ms :: pos_integer(),
+    flow :: atomics:atomics_ref() | undefined,   % the allowance (rw_flow)
     gvt = -1 :: integer(),            % GVT at the last look
     since :: integer()                % when it last changed (monotonic ms)
 }).
 
--spec start_link(#sim{}, pid() | undefined, pos_integer()) -> {ok, pid()}.
-start_link(Sim, Owner, Ms) -> gen_server:start_link(?MODULE, {Sim, Owner, Ms}, []).
+-spec start_link(#sim{}, pid() | undefined, pos_integer(), atomics:atomics_ref() | undefined) -> {ok, pid()}.
+start_link(Sim, Owner, Ms, Flow) -> gen_server:start_link(?MODULE, {Sim, Owner, Ms, Flow}, []).
 
--spec init({#sim{}, pid() | undefined, pos_integer()}) -> {ok, #w{}}.
-init({Sim, Owner, Ms}) ->
+-spec init({#sim{}, pid() | undefined, pos_integer(), atomics:atomics_ref() | undefined}) -> {ok, #w{}}.
+init({Sim, Owner, Ms, Flow}) ->
     _ = erlang:send_after(Ms div 4 + 1, self(), look),
-    {ok, #w{sim = Sim, owner = Owner, ms = Ms, since = now_ms()}}.
+    {ok, #w{sim = Sim, owner = Owner, ms = Ms, flow = Flow, since = now_ms()}}.
 
 -spec handle_call(term(), gen_server:from(), #w{}) -> {reply, ok, #w{}}.
 handle_call(_Req, _From, W) -> {reply, ok, W}.
@@ -39,13 +41,17 @@ handle_info(look, #w{sim = #sim{gvt_now = Now, end_t = End} = Sim, gvt = Last, s
         End ->
             {noreply, W};
         Last ->
-            case now_ms() - Since > Ms of
-                true ->
+            case {flow_held(Last, W), now_ms() - Since > Ms} of
+                {true, _} ->
+                    %% the time held does not count
+                    _ = erlang:send_after(Ms div 4 + 1, self(), look),
+                    {noreply, W#w{since = now_ms()}};
+                {false, true} ->
                     Report = diagnose(Sim),
                     GvtMs = rw_scene:ms(Sim#sim.scene, Last),
                     _ = [Pid ! {rw_stalled, Sim#sim.gvt, GvtMs, Report} || Pid <- [W#w.owner], is_pid(Pid)],
                     {noreply, W};
-                false ->
+                {false, false} ->
                     _ = erlang:send_after(Ms div 4 + 1, self(), look),
                     {noreply, W}
             end;
@@ -55,6 +61,9 @@ handle_info(look, #w{sim = #sim{gvt_now = Now, end_t = End} = Sim, gvt = Last, s
     end;
 handle_info(_Msg, W) ->
     {noreply, W}.
+
+flow_held(_G, #w{flow = undefined}) -> false;
+flow_held(G, #w{flow = Flow}) -> rw_flow:held(G, atomics:get(Flow, 1)).
 
 %% Who waits on whom: each body's phase, LVT, what it awaits and how many
 %% messages it has not read yet, the bodies holding GVT back first.
