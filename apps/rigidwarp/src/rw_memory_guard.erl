@@ -9,8 +9,9 @@
 %% simulation's processes had all started, and rw_speculation:ahead/5
 %% decides how far past GVT bodies may step (the atomics slot they read
 %% with GVT, rw_sim:ahead_slot/0) and whether the simulation's processes
-%% are asked to collect their garbage (once they have all done so since
-%% the last time). A body never stops short of the first sync point after
+%% are asked to collect their garbage: once they have all done so since
+%% the last time, and after a pause twice as long as that took
+%% (rw_speculation:collect_pause/1). A body never stops short of the first sync point after
 %% GVT (rw_entity), so the run goes on however far the guard holds it
 %% back. Every cut counts as a memory hold (rw_stats).
 %%
@@ -34,7 +35,11 @@
     pids :: [pid()],                      % the processes asked to collect
     budget :: pos_integer(),              % bytes
     base :: non_neg_integer(),            % erlang:memory(total) at the start
-    collecting = 0 :: non_neg_integer()   % collections asked for and not yet done
+    %% collections asked for and not yet done, and when they were asked
+    %% for (monotonic ms); when the next round may be asked for
+    collecting = 0 :: non_neg_integer(),
+    asked :: integer(),
+    next :: integer()
 }).
 
 -spec start_link(#sim{}, [pid()], pos_integer()) -> {ok, pid()}.
@@ -46,7 +51,7 @@ init({Sim, Pids, Budget}) ->
     %% a second and more as a thousand bodies took their first steps)
     _ = process_flag(priority, high),
     _ = erlang:send_after(?LOOK_MS, self(), look),
-    {ok, #g{sim = Sim, pids = Pids, budget = Budget, base = erlang:memory(total)}}.
+    {ok, #g{sim = Sim, pids = Pids, budget = Budget, base = erlang:memory(total), asked = now_ms(), next = now_ms()}}.
 
 -spec handle_call(term(), gen_server:from(), #g{}) -> {reply, ok, #g{}}.
 handle_call(_Req, _From, G) -> {reply, ok, G}.
@@ -67,15 +72,26 @@ handle_info(look, #g{sim = #sim{gvt_now = Now, scene = #scene{stride = Stride, s
                   true -> collect(G);
                   false -> G
               end};
+handle_info({garbage_collect, ?MODULE, _}, #g{collecting = 1, asked = Asked} = G) ->
+    Now = now_ms(),
+    {noreply, G#g{collecting = 0, next = Now + rw_speculation:collect_pause(Now - Asked)}};
 handle_info({garbage_collect, ?MODULE, _}, #g{collecting = N} = G) ->
     {noreply, G#g{collecting = N - 1}};
 handle_info(_Msg, G) ->
     {noreply, G}.
 
 %% Ask every process of the simulation to collect its garbage (a body's
-%% dead binaries are most of it), unless the last such request is still
-%% being carried out.
-collect(#g{collecting = 0, pids = Pids} = G) ->
-    _ = [erlang:garbage_collect(P, [{async, ?MODULE}]) || P <- Pids],
-    G#g{collecting = length(Pids)};
+%% dead binaries are most of it), unless the last round is still being
+%% carried out or its pause has not passed.
+collect(#g{collecting = 0, pids = Pids, next = Next} = G) ->
+    Now = now_ms(),
+    case Now >= Next of
+        true ->
+            _ = [erlang:garbage_collect(P, [{async, ?MODULE}]) || P <- Pids],
+            G#g{collecting = length(Pids), asked = Now};
+        false ->
+            G
+    end;
 collect(G) -> G.
+
+now_ms() -> erlang:monotonic_time(millisecond).

@@ -73,6 +73,11 @@ ahead_test() ->
     Back = lists:foldl(fun(_, A) -> element(1, rw_speculation:ahead(0, Budget, A, 2000, 10)) end, 10, lists:seq(1, 8)),
     ?assertEqual(2000, Back).
 
+%% Rounds of collections take a third of the time at most.
+collect_pause_test() ->
+    ?assertEqual(0, rw_speculation:collect_pause(0)),
+    ?assertEqual(200, rw_speculation:collect_pause(100)).
+
 %% The option is in MiB; left out, the default.
 budget_bytes_test() ->
     ?assertEqual(3 * ?MIB, rw_speculation:budget_bytes(#{speculation_mb => 3})),
