@@ -49,6 +49,8 @@
                          integrator => rw_integrate:integrator(), ccd => boolean(),
                          %% contact groups (timewarp): off runs one entity per body, as the paper
                          groups => boolean(), group_max => pos_integer(),
+                         %% the C loops (timewarp), where their library loads
+                         native => boolean(),
                          %% recovery (timewarp): restarts from the latest checkpoint
                          %% after a fault, at most max_restarts in restart_period_ms
                          max_restarts => non_neg_integer(), restart_period_ms => pos_integer(),
@@ -73,7 +75,7 @@
 
 %% The options the Time Warp engine itself takes.
 -define(TIMEWARP_KEYS, [buckets, schedulers, nodes, migrate, watchdog_ms, groups, group_max, max_restarts, restart_period_ms,
-                        checkpoint_ms, ring_size]).
+                        checkpoint_ms, ring_size, native]).
 %% What run/2 takes and start/2 cannot: start/2 hands out frames through
 %% the handle (frames/1, subscribe/1), not to a file or a callback.
 -define(RUN_ONLY_KEYS, [frames, resume, on_frame, on_progress]).
@@ -98,6 +100,8 @@ options() ->
       "other nodes' space (default true)"},
      {groups, boolean, "step bodies in persistent contact as one entity (default true)"},
      {group_max, count, "the most bodies in one contact group (default 1024)"},
+     {native, boolean, "the engine's C loops where their library loads; false runs its Erlang code alone, "
+      "with the same frames (default: the application's native, true)"},
      {watchdog_ms, count, "how long GVT may stand still before the run restarts (default 10000)"},
      {max_restarts, non_neg, "restarts after faults allowed within restart_period_ms (default 5)"},
      {restart_period_ms, count, "the period of the restart budget (default 10000)"},
@@ -462,7 +466,8 @@ summary(#scene{name = Name, substep = Dt, stride = Stride, spheres = Spheres} = 
     Resumed = case From of fresh -> #{}; _ -> #{resumed_from_ms => StartMs} end,
     %% the run's progress figures (status, GVT, start and end, the lead)
     %% say nothing once it has ended
-    maps:merge(maps:without([status, gvt, start_ms, end_ms, max_lvt], Stats),
+    %% (the reference engine is Erlang alone)
+    maps:merge(maps:without([status, gvt, start_ms, end_ms, max_lvt], maps:merge(#{native => false}, Stats)),
                Resumed#{scene => Name, engine => Engine, bodies => length(Spheres),
                         substep_ms => rw_scene:ms(Scene, Dt), stride_ms => rw_scene:ms(Scene, Stride),
                         sim_ms => SimMs, wall_ms => round(WallMs), realtime_factor => SimMs / max(WallMs, 0.001)}).

@@ -9,9 +9,15 @@
 %% cannot be loaded (the escript copied away from its build) enabled/0 says
 %% so, the callers run the Erlang code alone, slower and with the same
 %% results.
+%%
+%% The switch is per process: a run tells each of its processes (bodies,
+%% buckets) whether to use the C loops (its option native, by default the
+%% application's environment native), so that runs with either setting may
+%% go on side by side in one VM, and a node without the library runs the
+%% Erlang code whatever the run asks for.
 -module(rw_native).
 -export([free_run/13, first_touch/10, island_run/10, measure/2, huge_pages/0, huge_pages_for/1, loaded/0, enabled/0,
-         use/1, library/0, library_variable/0]).
+         use/1, default/0, in_use/2, library/0, library_variable/0]).
 -export([cells_new/0, cells_store/5, cells_probe/4, cells_delete/4, cells_gc/2, cells_dump/1]).
 -export_type([cells/0]).
 
@@ -29,15 +35,15 @@
 
 %% the library's file, or none
 -define(LIBRARY, {?MODULE, library}).
--define(ENABLED, {?MODULE, enabled}).
+%% (process dictionary) whether this process uses the C loops
+-define(IN_PROCESS, '$rw_native').
 
 %% The library from the application's priv directory (rw_priv: the
 %% escript's too) or, on a node a run has loaded the engine on (rw_nodes),
 %% from where the run has copied it.
 init() ->
     Library = load_first(candidates()),
-    persistent_term:put(?LIBRARY, Library),
-    persistent_term:put(?ENABLED, Library =/= none).
+    persistent_term:put(?LIBRARY, Library).
 
 load_first([]) -> none;
 load_first([Dir | Rest]) ->
@@ -80,15 +86,44 @@ library() ->
 -spec loaded() -> boolean().
 loaded() -> persistent_term:get(?LIBRARY, none) =/= none.
 
-%% Are the C loops loaded and in use? (Callers ask once per loop they run,
+%% Does this process use the C loops? Where it was not told (use/1), it
+%% does where the library is loaded. (Callers ask once per loop they run,
 %% and call them only then.)
 -spec enabled() -> boolean().
-enabled() -> persistent_term:get(?ENABLED, false).
+enabled() ->
+    case get(?IN_PROCESS) of
+        undefined -> loaded();
+        Native -> Native
+    end.
 
-%% Use the C loops (true, the default once loaded) or the Erlang code
-%% alone (false): to compare the two, bit for bit, in one VM.
+%% This process uses the C loops (true: where the library is loaded) or
+%% the Erlang code alone (false). A run's processes are told its setting
+%% as they start; tests compare the two, bit for bit.
 -spec use(boolean()) -> ok.
-use(Native) -> persistent_term:put(?ENABLED, Native andalso loaded()).
+use(Native) when is_boolean(Native) ->
+    _ = put(?IN_PROCESS, Native andalso loaded()),
+    ok.
+
+%% Whether a run uses the C loops unless told otherwise: the application's
+%% environment native (true where it is not a boolean).
+-spec default() -> boolean().
+default() ->
+    case application:get_env(rigidwarp, native, true) of
+        Native when is_boolean(Native) -> Native;
+        Bad ->
+            logger:warning("rigidwarp: native must be true or false, got ~0p; the C loops are used", [Bad]),
+            true
+    end.
+
+%% Whether a run that asks for the C loops (Native) runs them on every one
+%% of Nodes: each runs them where its library is loaded.
+-spec in_use(boolean(), [node()]) -> boolean().
+in_use(Native, Nodes) ->
+    Native andalso lists:all(fun(Node) when Node =:= node() -> loaded();
+                                (Node) -> try erpc:call(Node, ?MODULE, loaded, [], 5000) =:= true
+                                          catch _:_ -> false
+                                          end
+                             end, Nodes).
 
 %% Ask Linux to back the VM's super carrier (+MMscs, as the escript, the
 %% benchmarks and `make shell` start the VM) with transparent huge pages,

@@ -43,7 +43,7 @@
 -define(DEFAULT_RESTART_PERIOD_MS, 10000).
 %% The options the simulation's tree takes.
 -define(SIM_KEYS, [groups, group_max, regroup_every, grouping, profile, delay, watchdog_ms, ring_size,
-                   checkpoint_ms, trace, read_frames]).
+                   checkpoint_ms, trace, read_frames, native]).
 
 -record(r, {
     scene :: #scene{},                        % from the run's first start time
@@ -73,7 +73,8 @@
     start = 0 :: non_neg_integer(),           % where this run began, in ticks (its committed work counts from there)
     started :: integer(),                     % monotonic ms
     ended = none :: none | integer(),
-    lead = none :: rw_sim:lead()              % the highest LVT, as last read
+    lead = none :: rw_sim:lead(),             % the highest LVT, as last read
+    native = false :: boolean()               % the C loops ran on every node of the tree (rw_native:in_use/2)
 }).
 
 %% Start a run of Scene under rw_sims_sup, on the nodes it asks for: the
@@ -201,6 +202,7 @@ incarnate(#r{scene = Scene0, checkpoint = Checkpoint, opts = Opts} = R) ->
     case rw_sim_sup:start_link(Scene, R#r.buckets, #{records => R#r.records, ring => R#r.ring}, R#r.stats, SimOpts) of
         {ok, Sup, Sim, Named} ->
             {ok, R#r{sup = Sup, sim = Sim, sites = [P || {P, {site, _}} <- Named], placed_on = Nodes,
+                     native = rw_native:in_use(Sim#sim.native, Nodes),
                      watched = maps:from_list([{erlang:monitor(process, P), {P, Who}} || {P, Who} <- Named])}};
         {error, _} = Error ->
             Error
@@ -444,4 +446,4 @@ stats_of(#r{scene = #scene{spheres = Spheres, substep = Dt, duration = End}, sta
          gvt => GvtMs, start_ms => ms(Start, R), end_ms => ms(End, R), max_lvt => ms(max(Lead, G), R), wall_ms => Wall,
          realtime_factor => max(0, GvtMs - ms(Start, R)) / Wall,
          status => case R#r.status of {crashed, _, _} -> crashed; Status -> Status end,
-         restarts => R#r.restarted}, R#r{lead = LeadRead}}.
+         restarts => R#r.restarted, native => R#r.native}, R#r{lead = LeadRead}}.

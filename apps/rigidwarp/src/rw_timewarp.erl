@@ -14,6 +14,8 @@
                      %% Reason}, and of every frame or its time if it subscribes
                      owner => pid(), subscribe => none | frames | times,
                      groups => boolean(), group_max => pos_integer(),
+                     %% the engine's C loops where their library is loaded (default: rw_native:default/0)
+                     native => boolean(),
                      %% (tests) regroup points this many strides apart, groups of
                      %% all bodies near each other however they move
                      regroup_every => pos_integer(), grouping => persistent | eager,
@@ -32,7 +34,7 @@
                      on_progress => fun((map()) -> any())}.
 
 -define(RUN_KEYS, [buckets, schedulers, nodes, migrate, groups, group_max, regroup_every, grouping, watchdog_ms, ring_size, profile, read_frames,
-                   trace, delay, max_restarts, restart_period_ms, checkpoint_ms, from]).
+                   trace, delay, max_restarts, restart_period_ms, checkpoint_ms, from, native]).
 
 %% Start a simulation; it runs on its own until the scene's end.
 -spec start(#scene{}, options()) -> {ok, handle()} | {error, term()}.

@@ -30,10 +30,13 @@
       --groups on|off        timewarp: step bodies in persistent contact as one entity
                              (default on; off is the paper's one entity per body)
       --group-max N          timewarp: the most bodies in one contact group (default 1024)
+      --native on|off        timewarp: the engine's C loops where their library loads (default
+                             on); off runs its Erlang code alone, slower, with the same frames;
+                             the summary's native says whether they ran (on every node)
       --quiet                no progress line on stderr
       the summary's keys in this order (those the run has; any others follow, sorted):
                              scene, engine, bodies, substep_ms, stride_ms, sim_ms, wall_ms,
-                             realtime_factor, frames, then
+                             realtime_factor, frames, native, then
                              timewarp: events, antievents, rollbacks, primary_rollbacks,
                              secondary_rollbacks, rolled_back_substeps, computed_substeps,
                              committed_substeps, efficiency, steps, regroups, restarts,

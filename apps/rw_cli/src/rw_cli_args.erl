@@ -7,7 +7,7 @@
 -export([parse/1, bad_flag/2, pos_int/2, pos_ms/2, format_ms/1, shell_quote/1]).
 
 -define(VALUE_FLAGS, ["--engine", "--schedulers", "--nodes", "--connect", "--cookie", "--buckets", "--frames", "--until", "--substep",
-                      "--stride", "--frame-ms", "--integrator", "--ccd", "--groups", "--group-max"]).
+                      "--stride", "--frame-ms", "--integrator", "--ccd", "--groups", "--group-max", "--native"]).
 
 %% Flags to {SceneFile, Options, Quiet}.
 -spec parse([string()]) -> {string(), map(), boolean()}.
@@ -66,6 +66,9 @@ parse(["--groups", "on" | Rest], F, O, Q) -> parse(Rest, F, O#{groups => true}, 
 parse(["--groups", "off" | Rest], F, O, Q) -> parse(Rest, F, O#{groups => false}, Q);
 parse(["--groups", V | _], _, _, _) -> throw({usage, "--groups must be on or off, got " ++ V});
 parse(["--group-max", V | Rest], F, O, Q) -> parse(Rest, F, O#{group_max => pos_int("--group-max", V)}, Q);
+parse(["--native", "on" | Rest], F, O, Q) -> parse(Rest, F, O#{native => true}, Q);
+parse(["--native", "off" | Rest], F, O, Q) -> parse(Rest, F, O#{native => false}, Q);
+parse(["--native", V | _], _, _, _) -> throw({usage, "--native must be on or off, got " ++ V});
 parse([[$- | _] = Flag | _], _, _, _) -> bad_flag(Flag, ?VALUE_FLAGS);
 parse([File | Rest], undefined, O, Q) -> parse(Rest, File, O, Q);
 parse([Extra | _], _, _, _) -> throw({usage, "unexpected argument " ++ Extra}).
