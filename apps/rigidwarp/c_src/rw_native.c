@@ -36,12 +36,25 @@
 #endif
 #include "rw_cells.h"
 
+/* Erlang's binaries hold doubles big-endian (<<X:64/float>>), which this
+   library reads and writes with a byte swap: on any other host it refuses
+   to load, and the Erlang code runs. (Defined on the command line, 0 shows
+   the refusal on this host: rw_native_tests.) */
+#ifndef RW_HOST_LITTLE_ENDIAN
+#if defined(__BYTE_ORDER__) && defined(__ORDER_LITTLE_ENDIAN__) && __BYTE_ORDER__ == __ORDER_LITTLE_ENDIAN__
+#define RW_HOST_LITTLE_ENDIAN 1
+#else
+#define RW_HOST_LITTLE_ENDIAN 0
+#endif
+#endif
+
 static ERL_NIF_TERM atom_always, atom_none, atom_some, atom_undefined, atom_fallback, atom_symplectic_euler,
     atom_explicit_euler, atom_verlet, atom_near, atom_fixture, atom_plane, atom_box, atom_hollow, atom_unbounded;
 
 static int load(ErlNifEnv *env, void **priv, ERL_NIF_TERM info) {
     (void)priv;
     (void)info;
+    if (!RW_HOST_LITTLE_ENDIAN) return 1;
     atom_always = enif_make_atom(env, "always");
     atom_none = enif_make_atom(env, "none");
     atom_some = enif_make_atom(env, "some");
@@ -118,6 +131,16 @@ static inline void grow(double *box, double *reach, double x, double y, double z
 
 /* (a result Erlang would refuse: infinite or not a number) */
 #define CHECK(v) (bad |= !isfinite(v))
+
+/* The substeps of Dtt ticks from T while T < Last, at most Max; 0 for
+   times a loop could not step without overflow (the caller then falls
+   back: times are never negative, nor near 2^63, in a run). */
+static ErlNifSInt64 substeps(ErlNifSInt64 t, ErlNifSInt64 last, ErlNifSInt64 dtt, ErlNifSInt64 max) {
+    if (t < 0 || dtt <= 0 || t >= last || last > INT64_MAX - dtt) return 0;
+    uint64_t span = (uint64_t)last - (uint64_t)t;
+    uint64_t n = span / (uint64_t)dtt + (span % (uint64_t)dtt != 0);
+    return n > (uint64_t)max ? max : (ErlNifSInt64)n;
+}
 
 /* A fixture: its shape and its bounding box. */
 enum kind { K_PLANE, K_HOLLOW, K_SOLID, K_CYLINDER };
@@ -297,8 +320,8 @@ static ERL_NIF_TERM free_run(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[]
     else if (enif_is_identical(elems[0], atom_none)) first = 0;
     else return atom_fallback;
 
-    ErlNifSInt64 max = t < last ? (last - t + dtt - 1) / dtt : 0;
-    if (max > MAX_SUBSTEPS) max = MAX_SUBSTEPS;
+    if (t < 0 || last > INT64_MAX - dtt) return atom_fallback;
+    ErlNifSInt64 max = substeps(t, last, dtt, MAX_SUBSTEPS);
     size_t record = rotation ? 13 * 8 : 6 * 8;
     ErlNifBinary states;
     if (!enif_alloc_binary(max * record, &states)) return atom_fallback;
@@ -423,13 +446,16 @@ int rw_first_touch(const ErlNifBinary *a, ErlNifSInt64 sa, ErlNifSInt64 ia, cons
                    ErlNifSInt64 *k_out) {
     ErlNifSInt64 k = 0;
     if (sa < 24 || sb < 24 || left < 0 || left > MAX_SCAN) return -1;
+    /* the records read: from the ia-th and ib-th on, each within its
+       binary (no product of the arguments is formed that could wrap) */
+    if ((uint64_t)sa > a->size || (uint64_t)sb > b->size) return -1;
+    uint64_t ia_max = (a->size - (uint64_t)sa) / (uint64_t)sa + 1, ib_max = (b->size - (uint64_t)sb) / (uint64_t)sb + 1;
     int bad = 0;
     double sum2 = sum * sum;
     CHECK(sum2);
     if (bad) return -1;
     for (;;) {
-        if (ia < 1 || ib < 1 || (uint64_t)ia * (uint64_t)sa > a->size || (uint64_t)ib * (uint64_t)sb > b->size)
-            return -1;
+        if (ia < 1 || ib < 1 || (uint64_t)ia > ia_max || (uint64_t)ib > ib_max) return -1;
         const unsigned char *pa = a->data + (ia - 1) * sa, *pb = b->data + (ib - 1) * sb;
         double dx = get_double(pb) - get_double(pa), dy = get_double(pb + 8) - get_double(pa + 8),
                dz = get_double(pb + 16) - get_double(pa + 16);
@@ -1217,9 +1243,12 @@ static ERL_NIF_TERM island_run(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv
     is.anchor = enif_alloc(3 * n * sizeof(double));
     is.posts = enif_alloc(9 * n * sizeof(double));
     ErlNifBinary *bins = enif_alloc(n * sizeof *bins);
+    /* the members' terms of a sync point passed, or of the end: states,
+       then posts (on the heap: a group may be large) */
+    ERL_NIF_TERM *terms = enif_alloc(2 * n * sizeof *terms);
     int nbins = 0;
     if (!is.s || !is.f || !is.st || !is.next || !is.seen || !is.fixed_start || !is.fixed_n || !is.pair_start ||
-        !is.pair_n || !is.anchor || !is.posts || !bins)
+        !is.pair_n || !is.anchor || !is.posts || !bins || !terms)
         goto done;
     for (int k = 0; k < n; k++)
         if (!get_sphere(env, spheres[k], &is.s[k]) || !get_mstate(env, states[k], is.m.rot, &is.st[k])) goto done;
@@ -1229,8 +1258,8 @@ static ERL_NIF_TERM island_run(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv
 
     if (!get_externals(env, argv[9], &is)) goto done;
 
-    ErlNifSInt64 max = t < stop ? (stop - t + dtt - 1) / dtt : 0;
-    if (max * n > MAX_ISLAND_WORK) max = MAX_ISLAND_WORK / n > 0 ? MAX_ISLAND_WORK / n : 1;
+    if (t < 0 || stop > INT64_MAX - dtt) goto done;
+    ErlNifSInt64 max = substeps(t, stop, dtt, MAX_ISLAND_WORK / n > 0 ? MAX_ISLAND_WORK / n : 1);
     size_t record = is.m.rot ? 13 * 8 : 6 * 8;
     /* the sync points to pass: their states and posts, kept */
     ERL_NIF_TERM syncs = argv[8], passed = enif_make_list(env, 0), st_atom = enif_make_atom(env, "st");
@@ -1248,7 +1277,7 @@ static ERL_NIF_TERM island_run(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv
         if (measured && first) step = (eabs(np[0] - op[0]) + eabs(np[1] - op[1])) + eabs(np[2] - op[2]);
         if (fetestexcept(BAD_FLAGS)) break;
         if (t == sync) {
-            ERL_NIF_TERM sts[n], posts[n];
+            ERL_NIF_TERM *sts = terms, *posts = terms + n;
             for (int k = 0; k < n; k++) {
                 const double *post = &is.posts[9 * k];
                 sts[k] = make_mstate(env, st_atom, &is.st[k], is.m.rot);
@@ -1290,12 +1319,9 @@ static ERL_NIF_TERM island_run(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv
     }
     feclearexcept(FE_ALL_EXCEPT);
     {
-        ERL_NIF_TERM st_atom = enif_make_atom(env, "st");
-        ERL_NIF_TERM *terms = enif_alloc(n * sizeof *terms);
-        if (!terms) goto done;
         ERL_NIF_TERM out_bins = enif_make_list(env, 0);
         for (int k = n - 1; k >= 0; k--) {
-            if (!enif_realloc_binary(&bins[k], steps * record)) { enif_free(terms); goto done; }
+            if (!enif_realloc_binary(&bins[k], steps * record)) goto done;
             out_bins = enif_make_list_cell(env, enif_make_binary(env, &bins[k]), out_bins);
             nbins--;
         }
@@ -1307,11 +1333,11 @@ static ERL_NIF_TERM island_run(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv
         enif_make_reverse_list(env, passed, &ascending);
         result = enif_make_tuple5(env, enif_make_int64(env, t), enif_make_tuple_from_array(env, terms, n), out_bins,
                                   acc, ascending);
-        enif_free(terms);
     }
 done:
     for (int k = 0; k < nbins; k++) enif_release_binary(&bins[k]);
     enif_free(bins);
+    enif_free(terms);
     island_free(&is);
     return result;
 }

@@ -42,6 +42,32 @@ far_cells_test() ->
             ?assertNotEqual([], [H || H <- Hits, H =/= none])
     end.
 
+%% A span or cell that is not a cell's key is badarg, not enomem, and the
+%% call changes nothing: every key is read before the store is touched.
+bad_keys_are_badarg_test() ->
+    case rw_native:loaded() of
+        false ->
+            ok;
+        true ->
+            Model = #model{},
+            {Write, Spans} = write(Model, a, 0, [{0, {0.0, 0.0, 0.0}, {100.0, 0.0, 0.0}}], 8),
+            ?assert(length(Spans) >= 2),
+            Store = rw_native:cells_new(),
+            ok = rw_native:cells_store(Store, a, Write, Spans, 7),
+            Before = rw_native:cells_dump(Store),
+            {Cell, Ta, Tb, Ms} = lists:last(Spans),
+            [begin
+                 BadSpans = lists:droplast(Spans) ++ [{Bad, Ta, Tb, Ms}],
+                 ?assertError(badarg, rw_native:cells_store(Store, b, Write, BadSpans, 7)),
+                 ?assertError(badarg, rw_native:cells_probe(Store, Write, BadSpans, 1)),
+                 ?assertError(badarg, rw_native:cells_delete(Store, a, 0, [element(1, hd(Spans)), Bad])),
+                 ?assertEqual(Before, rw_native:cells_dump(Store))
+             end || Bad <- [{1, 2}, {a, 0, 0}, {0, 0, "1"}, not_a_cell]],
+            %% (a cell past 64 bits is a key)
+            ok = rw_native:cells_delete(Store, a, 0, [Cell, {1 bsl 70, 0, 0}]),
+            ?assertNotEqual(Before, rw_native:cells_dump(Store))
+    end.
+
 prop_same(Model) ->
     ?FORALL(Ops, ops(), begin
                             _ = run(Model, Ops),

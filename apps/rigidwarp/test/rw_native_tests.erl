@@ -132,6 +132,90 @@ fallback_test() ->
                  rw_native:free_run(3, 3, 1, 0.001, none, none, always, undefined, symplectic_euler,
                                     {0.0, 0.0, 0.0, 0.0, 0.0, 0.0}, undefined, undefined, Acc)).
 
+%% Offsets and times at the ends of 64 bits: nothing read outside a
+%% binary (an offset times a record size wraps past 2^64), no step count
+%% that overflows; the Erlang code takes over. (make sanitize runs these
+%% under AddressSanitizer and UndefinedBehaviorSanitizer.)
+limits_test() ->
+    Bin = <<0:(48 * 8)>>,
+    [?assertEqual(fallback, rw_native:first_touch(Bin, 48, IA, Bin, 48, 1, 0, 1.0, 0.0, undefined))
+     || IA <- [1 bsl 62, (1 bsl 62) + 1, (1 bsl 63) - 1, 0, -1]],
+    ?assertEqual(fallback, rw_native:first_touch(Bin, 1 bsl 62, 1, Bin, 48, 1, 0, 1.0, 0.0, undefined)),
+    ?assertEqual(fallback, rw_native:first_touch(Bin, 48, 1, Bin, 48, 1 bsl 62, 3, 1.0, 0.0, undefined)),
+    Acc = {none, {0.0, 0.0, 0.0, 0.0, 0.0, 0.0}, 0.0},
+    Free = fun(T, Last, DtT) ->
+                   rw_native:free_run(T, Last, DtT, 0.001, none, none, always, undefined, symplectic_euler,
+                                      {0.0, 0.0, 0.0, 1.0, 0.0, 0.0}, undefined, undefined, Acc)
+           end,
+    Max = (1 bsl 63) - 1,
+    [?assertEqual(fallback, Free(T, Last, DtT))
+     || {T, Last, DtT} <- [{-(1 bsl 63), Max, 1}, {0, Max, 2}, {1, Max, Max}, {-5, 10, 1}]],
+    %% (at most 4096 substeps a call, however far Last is)
+    ?assertMatch({4096, _, _, _, _}, Free(0, 1 bsl 62, 1)),
+    M = #model{},
+    Spheres = {#sphere{idx = 0, id = <<"a">>, radius = 0.1, mass = 1.0, inv_mass = 1.0, inv_inertia = 250.0},
+               #sphere{idx = 1, id = <<"b">>, radius = 0.1, mass = 1.0, inv_mass = 1.0, inv_inertia = 250.0}},
+    States = {#st{p = {0.0, 0.0, 0.0}, v = {1.0, 0.0, 0.0}}, #st{p = {1.0, 0.0, 0.0}, v = {-1.0, 0.0, 0.0}}},
+    Island = fun(T, Stop) -> rw_native:island_run(T, Stop, 1, M, Spheres, [], States, none, [], []) end,
+    ?assertEqual(fallback, Island(0, Max)),
+    ?assertEqual(fallback, Island(-1, 10)),
+    ?assertMatch({2048, _, [_, _], none, []}, Island(0, 1 bsl 62)).
+
+%% The C compiler's flags that keep the results those of the Erlang code
+%% come last, whatever CFLAGS the make command line gives.
+exact_float_flags_stay_test() ->
+    CSrc = filename:join(code:lib_dir(rigidwarp), "../../../../apps/rigidwarp/c_src"),
+    Out = os:cmd("make -n -B -C " ++ CSrc ++ " 'CFLAGS=-O3 -ffast-math -ffp-contract=fast' 2>&1"),
+    [Line] = [L || L <- string:split(Out, "
+", all), string:find(L, "rw_native.c") =/= nomatch],
+    Words = string:lexemes(Line, " "),
+    After = fun(Flag) -> lists:nthtail(length(lists:takewhile(fun(W) -> W =/= Flag end, Words)), Words) end,
+    ?assertMatch(["-ffast-math" | _], After("-ffast-math")),
+    ?assert(lists:member("-fno-fast-math", After("-ffast-math"))),
+    ?assert(lists:member("-ffp-contract=off", After("-ffp-contract=fast"))).
+
+%% A library built for a host whose byte order is not little-endian refuses
+%% to load, and the Erlang code runs: in a VM that finds only such a
+%% build, rw_native says it is not loaded and the scan answers as the
+%% Erlang code does. (The same build without the refusal loads there.)
+big_endian_build_refuses_to_load_test_() ->
+    {timeout, 120,
+     fun() ->
+             Still = rw_states:pack([#st{p = {0.0, 0.0, 0.0}, v = {0.0, 0.0, 0.0}} || _ <- lists:seq(1, 5)],
+                                    undefined, false, false),
+             Near = rw_states:pack([#st{p = {3.0 - K, 0.0, 0.0}, v = {-1.0, 0.0, 0.0}} || K <- lists:seq(0, 4)],
+                                   undefined, false, false),
+             Args = [Still, 1, Near, 1, 4, 1.0],
+             Expected = rw_states:first_touch(Still, 1, Near, 1, 4, 1.0),
+             ?assert(is_integer(Expected)),
+             ?assertEqual({false, Expected}, with_build("-DRW_HOST_LITTLE_ENDIAN=0", Args)),
+             ?assertEqual({true, Expected}, with_build("", Args))
+     end}.
+
+%% The library built with Defines into a temporary directory, loaded by a
+%% VM that finds no other (no code path: the modules are loaded into it):
+%% whether it loaded, and rw_states:first_touch/6 of Args there.
+with_build(Defines, Args) ->
+    Dir = string:trim(os:cmd("mktemp -d")),
+    CSrc = filename:join(code:lib_dir(rigidwarp), "../../../../apps/rigidwarp/c_src"),
+    try
+        Log = os:cmd("make -s -B -C " ++ CSrc ++ " PRIV=" ++ Dir ++ " 'CFLAGS=-O2 " ++ Defines ++ "' 2>&1; echo $?"),
+        ?assertEqual("0", lists:last(string:lexemes(Log, "
+"))),
+        {ok, Peer, _} = peer:start_link(#{connection => standard_io, env => [{rw_native:library_variable(), Dir}]}),
+        try
+            _ = [begin
+                     {M, Bin, File} = code:get_object_code(M),
+                     {module, M} = peer:call(Peer, code, load_binary, [M, File, Bin])
+                 end || M <- [rw_priv, rw_trace, rw_native, rw_states]],
+            {peer:call(Peer, rw_native, loaded, []), peer:call(Peer, rw_states, first_touch, Args)}
+        after
+            peer:stop(Peer)
+        end
+    after
+        os:cmd("rm -rf " ++ Dir)
+    end.
+
 %% huge_pages/0 advises the VM's super carrier: 1 GiB in a VM started with
 %% +MMscs 1024 (with at most a few MiB the kernel merged into its mapping;
 %% where Linux leaves huge pages to the program, the mapping is then
