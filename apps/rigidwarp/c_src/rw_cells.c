@@ -22,6 +22,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include "rw_cells.h"
+#include "rw_records.h"
 
 /* A member's span in a segment: present from a to b. */
 struct mspan { long idx; ErlNifSInt64 a, b; };
@@ -372,7 +373,7 @@ static void get_scan(ErlNifEnv *env, ERL_NIF_TERM payload, struct payload *p) {
     const ERL_NIF_TERM *e, *sphere, *sts, *scale;
     p->scan = 0;
     if (!enif_get_tuple(env, payload, &arity, &e) || arity != 6 || !enif_get_tuple(env, e[2], &arity, &sphere) ||
-        arity != 7 || !enif_get_double(env, sphere[3], &p->radius) || !enif_get_int64(env, e[3], &p->t0) ||
+        arity != SPHERE_SIZE || !enif_get_double(env, sphere[SPHERE_RADIUS], &p->radius) || !enif_get_int64(env, e[3], &p->t0) ||
         !enif_get_tuple(env, e[4], &arity, &sts) || arity != 6 || !enif_get_int64(env, sts[0], &p->size) ||
         !enif_inspect_binary(env, sts[3], &p->bin) || !enif_get_tuple(env, sts[4], &arity, &scale) || arity != 1 ||
         !enif_get_double(env, scale[0], &p->scale))

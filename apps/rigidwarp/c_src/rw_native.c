@@ -35,6 +35,7 @@
 #include <sys/mman.h>
 #endif
 #include "rw_cells.h"
+#include "rw_records.h"
 
 /* Erlang's binaries hold doubles big-endian (<<X:64/float>>), which this
    library reads and writes with a byte swap: on any other host it refuses
@@ -167,11 +168,11 @@ static int get_long(ErlNifEnv *env, ERL_NIF_TERM t, long *out) {
 static int get_fixture(ErlNifEnv *env, ERL_NIF_TERM term, struct fixture *f) {
     const ERL_NIF_TERM *rec, *shape;
     int arity, sa;
-    if (!enif_get_tuple(env, term, &arity, &rec) || arity != 5 || !enif_is_identical(rec[0], atom_fixture) ||
-        !get_long(env, rec[1], &f->idx) || !enif_get_tuple(env, rec[3], &sa, &shape) || sa < 1)
+    if (!enif_get_tuple(env, term, &arity, &rec) || arity != FIXTURE_SIZE || !enif_is_identical(rec[0], atom_fixture) ||
+        !get_long(env, rec[FIXTURE_IDX], &f->idx) || !enif_get_tuple(env, rec[FIXTURE_SHAPE], &sa, &shape) || sa < 1)
         return 0;
-    if (enif_is_identical(rec[4], atom_unbounded)) f->bounded = 0;
-    else if (get_doubles(env, rec[4], 6, f->box)) f->bounded = 1;
+    if (enif_is_identical(rec[FIXTURE_BOX], atom_unbounded)) f->bounded = 0;
+    else if (get_doubles(env, rec[FIXTURE_BOX], 6, f->box)) f->bounded = 1;
     else return 0;
     if (enif_is_identical(shape[0], atom_plane) && sa == 3) {
         f->kind = K_PLANE;
@@ -577,33 +578,35 @@ static inline double len2_3(const double *a) { return a[0] * a[0] + a[1] * a[1] 
 static int get_model(ErlNifEnv *env, ERL_NIF_TERM term, struct model *m) {
     const ERL_NIF_TERM *r;
     int arity;
-    if (!enif_get_tuple(env, term, &arity, &r) || arity != 11 || !enif_is_identical(r[0], enif_make_atom(env, "model")))
+    if (!enif_get_tuple(env, term, &arity, &r) || arity != MODEL_SIZE ||
+        !enif_is_identical(r[0], enif_make_atom(env, "model")))
         return 0;
-    if (!enif_get_double(env, r[1], &m->dt) || !enif_get_double(env, r[3], &m->e) ||
-        !enif_get_double(env, r[8], &m->rest_speed) || !enif_get_double(env, r[9], &m->beta) ||
-        !enif_get_double(env, r[10], &m->slop))
+    if (!enif_get_double(env, r[MODEL_DT], &m->dt) || !enif_get_double(env, r[MODEL_RESTITUTION], &m->e) ||
+        !enif_get_double(env, r[MODEL_REST_SPEED], &m->rest_speed) ||
+        !enif_get_double(env, r[MODEL_CORRECTION], &m->beta) || !enif_get_double(env, r[MODEL_SLOP], &m->slop))
         return 0;
-    m->gravity = !enif_is_identical(r[2], atom_undefined);
-    if (m->gravity && !get_doubles(env, r[2], 3, m->g)) return 0;
-    m->friction = !enif_is_identical(r[4], atom_undefined);
-    if (m->friction && !enif_get_double(env, r[4], &m->mu)) return 0;
-    if (enif_is_identical(r[5], enif_make_atom(env, "true"))) m->rot = 1;
-    else if (enif_is_identical(r[5], enif_make_atom(env, "false"))) m->rot = 0;
+    m->gravity = !enif_is_identical(r[MODEL_GRAVITY], atom_undefined);
+    if (m->gravity && !get_doubles(env, r[MODEL_GRAVITY], 3, m->g)) return 0;
+    m->friction = !enif_is_identical(r[MODEL_FRICTION], atom_undefined);
+    if (m->friction && !enif_get_double(env, r[MODEL_FRICTION], &m->mu)) return 0;
+    if (enif_is_identical(r[MODEL_ROTATION], enif_make_atom(env, "true"))) m->rot = 1;
+    else if (enif_is_identical(r[MODEL_ROTATION], enif_make_atom(env, "false"))) m->rot = 0;
     else return 0;
-    if (enif_is_identical(r[6], atom_symplectic_euler)) m->integrator = 0;
-    else if (enif_is_identical(r[6], atom_explicit_euler)) m->integrator = 1;
-    else if (enif_is_identical(r[6], atom_verlet)) m->integrator = 2;
+    if (enif_is_identical(r[MODEL_INTEGRATOR], atom_symplectic_euler)) m->integrator = 0;
+    else if (enif_is_identical(r[MODEL_INTEGRATOR], atom_explicit_euler)) m->integrator = 1;
+    else if (enif_is_identical(r[MODEL_INTEGRATOR], atom_verlet)) m->integrator = 2;
     else return 0;
-    return enif_is_identical(r[7], enif_make_atom(env, "false"));
+    return enif_is_identical(r[MODEL_CCD], enif_make_atom(env, "false"));
 }
 
 /* #sphere{idx, id, radius, mass, inv_mass, inv_inertia} */
 static int get_sphere(ErlNifEnv *env, ERL_NIF_TERM term, struct sphere *s) {
     const ERL_NIF_TERM *r;
     int arity;
-    return enif_get_tuple(env, term, &arity, &r) && arity == 7 && get_long(env, r[1], &s->idx) &&
-           enif_get_double(env, r[3], &s->r) && enif_get_double(env, r[5], &s->im) &&
-           enif_get_double(env, r[6], &s->ii);
+    return enif_get_tuple(env, term, &arity, &r) && arity == SPHERE_SIZE &&
+           enif_is_identical(r[0], enif_make_atom(env, "sphere")) && get_long(env, r[SPHERE_IDX], &s->idx) &&
+           enif_get_double(env, r[SPHERE_RADIUS], &s->r) && enif_get_double(env, r[SPHERE_INV_MASS], &s->im) &&
+           enif_get_double(env, r[SPHERE_INV_INERTIA], &s->ii);
 }
 
 /* rw_narrow:point_contact/3 */
@@ -909,12 +912,12 @@ static void advance(const struct model *m, const struct mstate *st, const double
 static int get_mstate(ErlNifEnv *env, ERL_NIF_TERM term, int rot, struct mstate *s) {
     const ERL_NIF_TERM *r, *q;
     int arity, qa;
-    if (!enif_get_tuple(env, term, &arity, &r) || arity != 5 || !get_doubles(env, r[1], 3, s->p) ||
-        !get_doubles(env, r[2], 3, s->v))
+    if (!enif_get_tuple(env, term, &arity, &r) || arity != ST_SIZE || !enif_is_identical(r[0], enif_make_atom(env, "st")) ||
+        !get_doubles(env, r[ST_P], 3, s->p) || !get_doubles(env, r[ST_V], 3, s->v))
         return 0;
-    if (!rot) return enif_is_identical(r[3], atom_undefined) && enif_is_identical(r[4], atom_undefined);
-    return enif_get_tuple(env, r[3], &qa, &q) && qa == 2 && get_doubles(env, q[0], 3, s->q) &&
-           enif_get_double(env, q[1], &s->q[3]) && get_doubles(env, r[4], 3, s->w);
+    if (!rot) return enif_is_identical(r[ST_Q], atom_undefined) && enif_is_identical(r[ST_W], atom_undefined);
+    return enif_get_tuple(env, r[ST_Q], &qa, &q) && qa == 2 && get_doubles(env, q[0], 3, s->q) &&
+           enif_get_double(env, q[1], &s->q[3]) && get_doubles(env, r[ST_W], 3, s->w);
 }
 
 static ERL_NIF_TERM make_mstate(ErlNifEnv *env, ERL_NIF_TERM st_atom, const struct mstate *s, int rot) {
@@ -923,7 +926,13 @@ static ERL_NIF_TERM make_mstate(ErlNifEnv *env, ERL_NIF_TERM st_atom, const stru
         q = enif_make_tuple2(env, make_doubles(env, s->q, 3), enif_make_double(env, s->q[3]));
         w = make_doubles(env, s->w, 3);
     }
-    return enif_make_tuple5(env, st_atom, make_doubles(env, s->p, 3), make_doubles(env, s->v, 3), q, w);
+    ERL_NIF_TERM r[ST_SIZE];
+    r[0] = st_atom;
+    r[ST_P] = make_doubles(env, s->p, 3);
+    r[ST_V] = make_doubles(env, s->v, 3);
+    r[ST_Q] = q;
+    r[ST_W] = w;
+    return enif_make_tuple_from_array(env, r, ST_SIZE);
 }
 
 /* A contact with a body outside at time t: member k's half. */
@@ -1407,7 +1416,15 @@ static ERL_NIF_TERM huge_pages(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv
     return enif_make_ulong(env, advised);
 }
 
+/* layouts(): where this library reads the Erlang records (rw_records.h). */
+static ERL_NIF_TERM layouts(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[]) {
+    (void)argc;
+    (void)argv;
+    return rw_records_layouts(env);
+}
+
 static ErlNifFunc funcs[] = {
+    {"nif_layouts", 0, layouts, 0},
     {"nif_free_run", 13, free_run, 0},
     {"nif_first_touch", 10, first_touch, 0},
     {"nif_island_run", 10, island_run, 0},

@@ -16,10 +16,17 @@
 %% go on side by side in one VM, and a node without the library runs the
 %% Erlang code whatever the run asks for.
 -module(rw_native).
+-include_lib("rw_physics/include/rw_physics.hrl").
 -export([free_run/13, first_touch/10, island_run/10, measure/2, huge_pages/0, huge_pages_for/1, loaded/0, enabled/0,
          use/1, default/0, in_use/2, library/0, library_variable/0]).
+-export([c_layouts/0, erlang_layouts/0, check_layouts/2]).
 -export([cells_new/0, cells_store/5, cells_probe/4, cells_delete/4, cells_gc/2, cells_dump/1]).
--export_type([cells/0]).
+-export_type([cells/0, layout/0]).
+
+%% A record as the C code reads it ({Name, TupleSize, [{Field,
+%% Position}]}) or as the Erlang code was compiled with it ({Name,
+%% TupleSize, Fields in order}).
+-type layout() :: {atom(), pos_integer(), [{atom(), pos_integer()}] | [atom()]}.
 
 %% A TVHT bucket's segments kept in C (c_src/rw_cells.c): rw_cells' map of
 %% cells, writers and segments outside the Erlang heap. Changed in place
@@ -40,10 +47,60 @@
 
 %% The library from the application's priv directory (rw_priv: the
 %% escript's too) or, on a node a run has loaded the engine on (rw_nodes),
-%% from where the run has copied it.
+%% from where the run has copied it; unused (one warning) where it reads
+%% the records otherwise than this code was compiled with them.
 init() ->
-    Library = load_first(candidates()),
+    Library = case load_first(candidates()) of
+                  none -> none;
+                  File ->
+                      case check_layouts(c_layouts(), erlang_layouts()) of
+                          ok -> File;
+                          {error, Why} ->
+                              logger:warning("rigidwarp: the C loops' library ~ts is not used, the Erlang code runs: ~ts",
+                                             [File, Why]),
+                              none
+                      end
+              end,
     persistent_term:put(?LIBRARY, Library).
+
+%% Where the loaded library reads the records.
+-spec c_layouts() -> [layout()].
+c_layouts() -> nif_layouts().
+
+nif_layouts() -> erlang:nif_error(not_loaded).
+
+%% The records as this code was compiled with them.
+-spec erlang_layouts() -> [layout()].
+erlang_layouts() ->
+    [{model, record_info(size, model), record_info(fields, model)},
+     {sphere, record_info(size, sphere), record_info(fields, sphere)},
+     {st, record_info(size, st), record_info(fields, st)},
+     {fixture, record_info(size, fixture), record_info(fields, fixture)}].
+
+%% Does the C code (Assumed) read every record where Actual has it?
+-spec check_layouts([layout()], [layout()]) -> ok | {error, string()}.
+check_layouts(Assumed, Actual) ->
+    Wrong = [Why || {Record, Size, Fields} <- Assumed, Why <- [layout_error(Record, Size, Fields, Actual)],
+                    Why =/= ok],
+    case Wrong of
+        [] -> ok;
+        [Why | _] -> {error, Why}
+    end.
+
+layout_error(Record, Size, Fields, Actual) ->
+    case lists:keyfind(Record, 1, Actual) of
+        false ->
+            format("the C code reads a record #~s{} the Erlang code does not have", [Record]);
+        {_, Size, Names} when length(Names) =:= Size - 1 ->
+            case [{F, P} || {F, P} <- Fields, not (P >= 1 andalso P < Size andalso lists:nth(P, Names) =:= F)] of
+                [] -> ok;
+                [{F, P} | _] -> format("the C code reads #~s.~s at position ~b, the Erlang record has ~0p", [Record, F, P, Names])
+            end;
+        {_, ActualSize, _} ->
+            format("the C code reads #~s{} as a tuple of ~b elements, the Erlang record has ~b", [Record, Size, ActualSize])
+    end.
+
+format(Format, Args) -> lists:flatten(io_lib:format(Format, Args)).
 
 load_first([]) -> none;
 load_first([Dir | Rest]) ->

@@ -13,6 +13,26 @@
 loaded_test() ->
     ?assert(rw_native:loaded()).
 
+%% The library reads #model{}, #sphere{}, #st{} and #fixture{} where the
+%% Erlang code has their fields; a record with a field more, two fields
+%% swapped, another size or missing is refused, naming the record.
+record_layouts_test() ->
+    C = rw_native:c_layouts(),
+    Erlang = rw_native:erlang_layouts(),
+    ?assertEqual([fixture, model, sphere, st], lists:sort([R || {R, _, _} <- C])),
+    ?assertEqual(ok, rw_native:check_layouts(C, Erlang)),
+    {model, Size, [Dt | Rest]} = lists:keyfind(model, 1, Erlang),
+    Refused = fun(Model) ->
+                      {error, Why} = rw_native:check_layouts(C, lists:keystore(model, 1, Erlang, Model)),
+                      ?assertNotEqual(nomatch, string:find(Why, "#model"))
+              end,
+    Refused({model, Size + 1, [Dt, added | Rest]}),
+    Refused({model, Size + 1, Rest ++ [Dt, added]}),
+    Refused({model, Size, [hd(Rest), Dt | tl(Rest)]}),
+    Refused({model, Size - 1, Rest}),
+    {error, Missing} = rw_native:check_layouts(C, lists:keydelete(st, 1, Erlang)),
+    ?assertNotEqual(nomatch, string:find(Missing, "#st")).
+
 %% A body alone in free flight, no fixture, at awkward positions, velocities
 %% and spins, with every integrator, across sync points and a known
 %% contact: rw_chain:run/5's states, sync points and island, or its
