@@ -142,9 +142,11 @@ scale({X, Y, Z}, K) -> {X * K, Y * K, Z * K}.
 ops() ->
     ?LET(Ops, non_empty(list(frequency([{6, write_op()}, {2, delete_op()}, {1, gc_op()}]))), times(Ops, #{}, 0)).
 
+%% (now and then a long write: long windows to scan)
 write_op() ->
     ?LET({Owner, N}, {oneof([a, b, c, d]), range(1, 3)},
-         {write, Owner, [{body(), vec(-1.0, 1.0), vec(-400.0, 400.0)} || _ <- lists:seq(1, N)], range(1, 12)}).
+         {write, Owner, [{body(), vec(-1.0, 1.0), vec(-400.0, 400.0)} || _ <- lists:seq(1, N)],
+          frequency([{9, range(1, 12)}, {1, range(40, 200)}])}).
 
 delete_op() -> {delete, oneof([a, b, c, d]), range(0, 6)}.
 
