@@ -209,6 +209,7 @@ bad_flags_exit_2(_Config) ->
              {["run", Scene, "--ccd"], "--ccd needs a value"},
              {["run", Scene, "--groups", "sometimes"], "--groups must be on or off, got sometimes"},
              {["run", Scene, "--group-max", "0"], "--group-max must be a positive integer, got 0"},
+             {["run", Scene, "--group-max", "4097"], "--group-max must be at most 4096, got 4097"},
              {["run", Scene, "--native", "yes"], "--native must be on or off, got yes"},
              {["run", Scene, "--native"], "--native needs a value"},
              {["run", Scene, "--nodes", "0"], "--nodes must be a positive integer, got 0"},

@@ -23,6 +23,7 @@
 #include <string.h>
 #include "rw_cells.h"
 #include "rw_records.h"
+#include "rw_slice.h"
 
 /* A member's span in a segment: present from a to b. */
 struct mspan { long idx; ErlNifSInt64 a, b; };
@@ -42,6 +43,7 @@ struct payload {
 /* A write as stored: its copy, the writer and T0 in it, per member. */
 struct write {
     long refs;
+    struct write *next_dead;
     ErlNifEnv *env;
     ERL_NIF_TERM owner;
     ErlNifSInt64 t0;
@@ -85,10 +87,14 @@ struct cell {
     size_t n, cap;
 };
 
+/* (dead: the writes no segment refers to any more, their environments
+   not yet freed: freeing a large group's write takes milliseconds, which
+   rw_cells_free/3 takes on a dirty scheduler) */
 struct cells {
     ErlNifMutex *lock;
     struct cell **table;
     size_t size, count;
+    struct write *dead;
 };
 
 static ErlNifResourceType *cells_type;
@@ -250,20 +256,29 @@ static struct cell *add_cell(struct cells *cs, const struct key *k) {
     return c;
 }
 
-static void release_write(struct write *w) {
+static void release_write(struct cells *cs, struct write *w) {
     if (--w->refs > 0) return;
-    enif_free_env(w->env);
-    enif_free(w);
+    w->next_dead = cs->dead;
+    cs->dead = w;
 }
 
-static void free_seg(struct seg *s) {
-    release_write(s->w);
+static void free_dead(struct cells *cs) {
+    for (struct write *w = cs->dead, *next; w; w = next) {
+        next = w->next_dead;
+        enif_free_env(w->env);
+        enif_free(w);
+    }
+    cs->dead = NULL;
+}
+
+static void free_seg(struct cells *cs, struct seg *s) {
+    release_write(cs, s->w);
     if (s->ms) enif_free(s->ms);
 }
 
-static void free_cell(struct cell *c) {
+static void free_cell(struct cells *cs, struct cell *c) {
     for (size_t i = 0; i < c->n; i++) {
-        for (size_t j = 0; j < c->writers[i].n; j++) free_seg(&c->writers[i].segs[j]);
+        for (size_t j = 0; j < c->writers[i].n; j++) free_seg(cs, &c->writers[i].segs[j]);
         if (c->writers[i].segs) enif_free(c->writers[i].segs);
     }
     if (c->writers) enif_free(c->writers);
@@ -277,7 +292,7 @@ static void drop_cell(struct cells *cs, struct cell *c) {
         if (*p == c) {
             *p = c->next;
             cs->count--;
-            free_cell(c);
+            free_cell(cs, c);
             return;
         }
     }
@@ -291,7 +306,7 @@ static void drop_empty(struct cells *cs) {
             if (c->n == 0) {
                 *p = c->next;
                 cs->count--;
-                free_cell(c);
+                free_cell(cs, c);
             } else {
                 p = &c->next;
             }
@@ -305,9 +320,10 @@ static void cells_dtor(ErlNifEnv *env, void *obj) {
     for (size_t i = 0; cs->table && i < cs->size; i++) {
         for (struct cell *c = cs->table[i], *next; c; c = next) {
             next = c->next;
-            free_cell(c);
+            free_cell(cs, c);
         }
     }
+    free_dead(cs);
     if (cs->table) enif_free(cs->table);
     if (cs->lock) enif_mutex_destroy(cs->lock);
 }
@@ -504,7 +520,7 @@ static void remove_writer(struct cell *c, struct wsegs *ws) {
 
 /* rw_cells:store/7's segments, as Owner's: each span from Ta =< UpTo on,
    cut at UpTo, in front of the owner's segments in its cell. */
-ERL_NIF_TERM rw_cells_store(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[]) {
+static ERL_NIF_TERM cells_store(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[]) {
     struct cells *cs;
     ErlNifSInt64 upto, t0, box[6];
     ERL_NIF_TERM owner = argv[1], writer;
@@ -601,8 +617,8 @@ ERL_NIF_TERM rw_cells_store(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
                     else j++;
         drop_empty(cs);
     }
+    release_write(cs, w);
     enif_mutex_unlock(cs->lock);
-    release_write(w);
     arena_free(&ar);
     return ok ? atom_ok : enif_raise_exception(env, enif_make_atom(env, "enomem"));
 }
@@ -686,6 +702,7 @@ ERL_NIF_TERM rw_cells_probe(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
     struct arena ar = {scratch, sizeof scratch, 0, NULL};
     (void)argc;
     ErlNifSInt64 dt;
+    ErlNifTime start = rw_now();
     if (!get_cells(env, argv[0], &cs) || !enif_get_int64(env, argv[3], &dt)) return enif_make_badarg(env);
     int parsed = get_write(env, &ar, argv[1], &me, &t0, box, &mine, &nmine);
     if (parsed > 0) parsed = get_spans(env, &ar, argv[2], &spans, &nspans);
@@ -783,14 +800,12 @@ ERL_NIF_TERM rw_cells_probe(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
     }
     enif_mutex_unlock(cs->lock);
     arena_free(&ar);
-    /* (a large group's write meets thousands of pairs: the scheduler is
-       told of the time taken, some 1 % per 16 pairs) */
-    if (ws.n >= 16) enif_consume_timeslice(env, ws.n >= 1600 ? 100 : (int)(ws.n / 16));
+    rw_spend(env, start);
     return ok > 0 ? result : failed(env, ok);
 }
 
 /* rw_cells:delete/5's truncation: Owner's segments in Cells end at R. */
-ERL_NIF_TERM rw_cells_delete(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[]) {
+static ERL_NIF_TERM cells_delete(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[]) {
     struct cells *cs;
     ErlNifSInt64 r;
     (void)argc;
@@ -818,7 +833,7 @@ ERL_NIF_TERM rw_cells_delete(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[]
         if (!c) continue;
         struct wsegs *ws = find_writer(c, owner, hash);
         if (!ws) continue;
-        while (ws->n > 0 && ws->segs[ws->n - 1].ta > r) free_seg(&ws->segs[--ws->n]);
+        while (ws->n > 0 && ws->segs[ws->n - 1].ta > r) free_seg(cs, &ws->segs[--ws->n]);
         if (ws->n > 0 && ws->segs[ws->n - 1].tb > r) {
             struct seg *s = &ws->segs[ws->n - 1];
             s->tb = r;
@@ -844,23 +859,69 @@ ERL_NIF_TERM rw_cells_delete(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[]
     return atom_ok;
 }
 
-/* rw_cells:gc/2's sweep: each writer keeps its newest segments that end
-   at Gvt or later. */
+/* A store's and a delete's time, told to the scheduler (a large group's
+   write spans many cells). */
+ERL_NIF_TERM rw_cells_store(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[]) {
+    ErlNifTime start = rw_now();
+    ERL_NIF_TERM result = cells_store(env, argc, argv);
+    rw_spend(env, start);
+    return result;
+}
+
+ERL_NIF_TERM rw_cells_delete(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[]) {
+    ErlNifTime start = rw_now();
+    ERL_NIF_TERM result = cells_delete(env, argc, argv);
+    rw_spend(env, start);
+    return result;
+}
+
+/* rw_cells:gc/2's sweep from where the call before stopped (0: from the
+   start): each writer keeps its newest segments that end at Gvt or later,
+   and a cell left without writers goes. It stops once half a time slice
+   is up (a cell of a tall stack holds hundreds of writers and tens of
+   thousands of segments): {Slot, Depth, Writer}, the writer to go on from
+   (Depth: the cells kept before it in its slot's chain); at the end ok,
+   or free where writes wait to be freed (rw_cells_free/1). The caller
+   calls again at once, before anything else changes the cells. */
+#define GC_BUDGET_US (RW_SLICE_US / 2)
 ERL_NIF_TERM rw_cells_gc(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[]) {
     struct cells *cs;
     ErlNifSInt64 gvt;
+    ErlNifUInt64 slot = 0, depth = 0, writer = 0;
+    ErlNifTime start = rw_now();
+    const ERL_NIF_TERM *from;
+    int arity;
     (void)argc;
     if (!get_cells(env, argv[0], &cs) || !enif_get_int64(env, argv[1], &gvt)) return enif_make_badarg(env);
+    if (!enif_is_identical(argv[2], enif_make_int(env, 0)) &&
+        !(enif_get_tuple(env, argv[2], &arity, &from) && arity == 3 && enif_get_uint64(env, from[0], &slot) &&
+          enif_get_uint64(env, from[1], &depth) && enif_get_uint64(env, from[2], &writer)))
+        return enif_make_badarg(env);
     enif_mutex_lock(cs->lock);
-    for (size_t i = 0; i < cs->size; i++) {
-        for (struct cell *c = cs->table[i]; c; c = c->next) {
-            for (size_t j = 0; j < c->n;) {
+    ERL_NIF_TERM result = atom_ok;
+    size_t swept = 0;
+    for (size_t i = slot; i < cs->size; i++, depth = 0, writer = 0) {
+        size_t d = 0;
+        for (struct cell **p = &cs->table[i]; *p;) {
+            struct cell *c = *p;
+            if (d < depth) {
+                p = &c->next;
+                d++;
+                continue;
+            }
+            for (size_t j = d == depth ? writer : 0; j < c->n;) {
+                if (swept > 0 && swept % 8 == 0 && rw_now() - start >= GC_BUDGET_US) {
+                    result = enif_make_tuple3(env, enif_make_uint64(env, i), enif_make_uint64(env, d),
+                                              enif_make_uint64(env, j));
+                    goto out;
+                }
+                swept++;
                 struct wsegs *ws = &c->writers[j];
                 size_t keep = ws->n;
                 while (keep > 0 && ws->segs[keep - 1].tb >= gvt) keep--;
                 /* segments [keep, n) are kept */
                 if (keep > 0) {
-                    for (size_t s = 0; s < keep; s++) free_seg(&ws->segs[s]);
+                    for (size_t s = 0; s < keep; s++) free_seg(cs, &ws->segs[s]);
                     memmove(ws->segs, ws->segs + keep, (ws->n - keep) * sizeof *ws->segs);
                     ws->n -= keep;
                     if (ws->n > 0) refresh(ws);
@@ -868,9 +929,32 @@ ERL_NIF_TERM rw_cells_gc(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[]) {
                 if (ws->n == 0) remove_writer(c, ws);
                 else j++;
             }
+            if (c->n == 0) {
+                *p = c->next;
+                cs->count--;
+                free_cell(cs, c);
+            } else {
+                p = &c->next;
+                d++;
+            }
         }
     }
-    drop_empty(cs);
+    if (cs->dead) result = enif_make_atom(env, "free");
+out:
+    enif_mutex_unlock(cs->lock);
+    rw_spend(env, start);
+    return result;
+}
+
+/* The environments of the writes no segment refers to any more, freed (a
+   dirty CPU job: a large group's write holds a map of hundreds of
+   payloads, some milliseconds to free). */
+ERL_NIF_TERM rw_cells_free(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[]) {
+    struct cells *cs;
+    (void)argc;
+    if (!get_cells(env, argv[0], &cs)) return enif_make_badarg(env);
+    enif_mutex_lock(cs->lock);
+    free_dead(cs);
     enif_mutex_unlock(cs->lock);
     return atom_ok;
 }

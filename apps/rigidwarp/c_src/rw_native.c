@@ -36,6 +36,7 @@
 #endif
 #include "rw_cells.h"
 #include "rw_records.h"
+#include "rw_slice.h"
 
 /* Erlang's binaries hold doubles big-endian (<<X:64/float>>), which this
    library reads and writes with a byte swap: on any other host it refuses
@@ -533,10 +534,20 @@ static ERL_NIF_TERM first_touch(ErlNifEnv *env, int argc, const ERL_NIF_TERM arg
 #include <stdlib.h>
 
 #define BAD_FLAGS (FE_OVERFLOW | FE_DIVBYZERO | FE_INVALID)
-/* member-substeps per call: under a millisecond (up to 0.2 us each in a
-   resting pile with friction and rotation), as a NIF on a normal
-   scheduler should take */
+/* A call on a normal scheduler: at most this many member-substeps (the
+   states it returns are allocated for them) and, after its first substep,
+   none begun past half a slice (a member-substep takes 0.2-1 us in a
+   resting pile with friction and rotation). */
 #define MAX_ISLAND_WORK 4096
+#define ISLAND_BUDGET_US (RW_SLICE_US / 2)
+/* A group of this many members or more steps on a dirty CPU scheduler:
+   a substep of its own would take a good part of a slice, and each call
+   reads and builds every member's terms; there a call takes more
+   substeps, up to a few milliseconds, so that it reads and builds them
+   less often. */
+#define DIRTY_MEMBERS 128
+#define MAX_ISLAND_WORK_DIRTY 32768
+#define ISLAND_BUDGET_DIRTY_US (5 * RW_SLICE_US)
 
 struct sphere { long idx; double r, im, ii; };
 
@@ -952,8 +963,9 @@ struct island {
     size_t *pair_start, *pair_n; /* per member: its pair effects, sorted, in sorted */
     struct effect *sorted;
     size_t sorted_cap;
-    /* the neighbour list: anchors, limit and pairs */
+    /* the neighbour list: anchors, limit and pairs, and the sweep's items */
     double *anchor;
+    struct item *items;
     double limit;
     int listed; /* 0: every pair is tested */
     int *pairs_ab;
@@ -965,10 +977,22 @@ struct island {
     double *posts;
 };
 
+/* A member in the sweep: its anchor's x and its position. */
+struct item { double x; int k; };
+
+/* rw_broadphase:sweep/2's order of its items {X, K, ...}: by x (-0.0 and
+   0.0 alike), then by position. */
+static int item_order(const void *a, const void *b) {
+    const struct item *p = a, *q = b;
+    if (p->x < q->x) return -1;
+    if (p->x > q->x) return 1;
+    return (p->k > q->k) - (p->k < q->k);
+}
+
 /* Pairs that may touch while every member stays within limit of its
-   anchor, relative to the first member's move (rw_island's list,
-   the same bounds; any valid list finds the contacts that a test of
-   every pair finds). */
+   anchor, relative to the first member's move: rw_island:build/2's list,
+   found by its sweep and prune (rw_broadphase:sweep/2 with {skin, Skin}),
+   the same float operations, so that it overflows where that raises. */
 static int build_list(struct island *is) {
     int n = is->n;
     double rmax = 0.0, scale = 0.0;
@@ -986,24 +1010,35 @@ static int build_list(struct island *is) {
     is->listed = is->limit > 0.0;
     is->npairs = 0;
     if (!is->listed) return 1;
-    for (int a = 0; a < n; a++)
-        for (int b = a + 1; b < n; b++) {
-            const double *pa = is->st[a].p, *pb = is->st[b].p;
-            double d[3] = {pb[0] - pa[0], pb[1] - pa[1], pb[2] - pa[2]};
-            double reach = is->s[a].r + is->s[b].r + skin;
-            if (len2_3(d) < reach * reach) {
-                if (is->npairs == is->pairs_cap) {
-                    size_t cap = is->pairs_cap ? 2 * is->pairs_cap : 256;
-                    int *p = enif_realloc(is->pairs_ab, 2 * cap * sizeof *p);
-                    if (!p) return 0;
-                    is->pairs_ab = p;
-                    is->pairs_cap = cap;
-                }
-                is->pairs_ab[2 * is->npairs] = a;
-                is->pairs_ab[2 * is->npairs + 1] = b;
-                is->npairs++;
+    for (int k = 0; k < n; k++) {
+        is->items[k].x = is->st[k].p[0];
+        is->items[k].k = k;
+    }
+    qsort(is->items, n, sizeof *is->items, item_order);
+    for (int i = 0; i < n; i++) {
+        int a = is->items[i].k;
+        const double *pa = is->st[a].p;
+        double ra = is->s[a].r, reach = ra + rmax + skin, xmax = pa[0] + reach;
+        for (int j = i + 1; j < n && is->items[j].x < xmax; j++) {
+            int b = is->items[j].k;
+            const double *pb = is->st[b].p;
+            double dy = pb[1] - pa[1], dz = pb[2] - pa[2];
+            if (dy >= reach || -dy >= reach || dz >= reach || -dz >= reach) continue;
+            double dx = pb[0] - pa[0];
+            double d2 = dx * dx + dy * dy + dz * dz, s = ra + is->s[b].r + skin;
+            if (!(d2 < s * s)) continue;
+            if (is->npairs == is->pairs_cap) {
+                size_t cap = is->pairs_cap ? 2 * is->pairs_cap : 256;
+                int *p = enif_realloc(is->pairs_ab, 2 * cap * sizeof *p);
+                if (!p) return 0;
+                is->pairs_ab = p;
+                is->pairs_cap = cap;
             }
+            is->pairs_ab[2 * is->npairs] = a < b ? a : b;
+            is->pairs_ab[2 * is->npairs + 1] = a < b ? b : a;
+            is->npairs++;
         }
+    }
     return 1;
 }
 
@@ -1148,7 +1183,7 @@ static void island_free(struct island *is) {
     enif_free(is->s); enif_free(is->f); enif_free(is->st); enif_free(is->next); enif_free(is->seen);
     enif_free(is->fixed_start); enif_free(is->fixed_n); enif_free(is->pair_start); enif_free(is->pair_n);
     enif_free(is->fixed.e); enif_free(is->pairs.e); enif_free(is->sorted); enif_free(is->anchor);
-    enif_free(is->pairs_ab); enif_free(is->ext); enif_free(is->posts);
+    enif_free(is->pairs_ab); enif_free(is->ext); enif_free(is->posts); enif_free(is->items);
 }
 
 /* The next sync point from a list of them (-1: none). */
@@ -1205,7 +1240,9 @@ static int get_externals(ErlNifEnv *env, ERL_NIF_TERM list, struct island *is) {
  * the known contacts with bodies outside from T on, {Time, MemberIdx,
  * PartnerIdx, Effect} ascending by time. Steps every substep from T while
  * T < Stop (not the group's start: the caller's to know), at most
- * MAX_ISLAND_WORK member-substeps, and returns
+ * MAX_ISLAND_WORK member-substeps and half a time slice (a group of
+ * DIRTY_MEMBERS or more: on a dirty CPU scheduler, at most
+ * MAX_ISLAND_WORK_DIRTY and a few milliseconds), and returns
  * {T1, States1, Bins, Acc1, Passed}: the time reached, the states there,
  * per member its states after T up to T1 (rw_states' layout), Acc (none,
  * or for a body alone {First, Box, Reach} measured over its states as
@@ -1213,14 +1250,15 @@ static int get_externals(ErlNifEnv *env, ERL_NIF_TERM list, struct island *is) {
  * {Ts, States, Posts} with the members' post-response velocities {V, W, U};
  * or fallback.
  */
-static ERL_NIF_TERM island_run(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[]) {
+/* (at most Work member-substeps, and none begun Budget us after Start but
+   the first) */
+static ERL_NIF_TERM island(ErlNifEnv *env, const ERL_NIF_TERM argv[], ErlNifTime start, ErlNifTime budget, long work) {
     ErlNifSInt64 t, stop, dtt;
     const ERL_NIF_TERM *spheres, *states;
     int n, ns;
     unsigned nf;
     struct island is;
     ERL_NIF_TERM result = atom_fallback, list, head;
-    (void)argc;
     memset(&is, 0, sizeof is);
     if (!enif_get_int64(env, argv[0], &t) || !enif_get_int64(env, argv[1], &stop) ||
         !enif_get_int64(env, argv[2], &dtt) || dtt <= 0 || !get_model(env, argv[3], &is.m) ||
@@ -1250,6 +1288,7 @@ static ERL_NIF_TERM island_run(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv
     is.pair_start = enif_alloc(n * sizeof(size_t));
     is.pair_n = enif_alloc(n * sizeof(size_t));
     is.anchor = enif_alloc(3 * n * sizeof(double));
+    is.items = enif_alloc(n * sizeof *is.items);
     is.posts = enif_alloc(9 * n * sizeof(double));
     ErlNifBinary *bins = enif_alloc(n * sizeof *bins);
     /* the members' terms of a sync point passed, or of the end: states,
@@ -1257,7 +1296,7 @@ static ERL_NIF_TERM island_run(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv
     ERL_NIF_TERM *terms = enif_alloc(2 * n * sizeof *terms);
     int nbins = 0;
     if (!is.s || !is.f || !is.st || !is.next || !is.seen || !is.fixed_start || !is.fixed_n || !is.pair_start ||
-        !is.pair_n || !is.anchor || !is.posts || !bins || !terms)
+        !is.pair_n || !is.anchor || !is.items || !is.posts || !bins || !terms)
         goto done;
     for (int k = 0; k < n; k++)
         if (!get_sphere(env, spheres[k], &is.s[k]) || !get_mstate(env, states[k], is.m.rot, &is.st[k])) goto done;
@@ -1268,7 +1307,7 @@ static ERL_NIF_TERM island_run(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv
     if (!get_externals(env, argv[9], &is)) goto done;
 
     if (t < 0 || stop > INT64_MAX - dtt) goto done;
-    ErlNifSInt64 max = substeps(t, stop, dtt, MAX_ISLAND_WORK / n > 0 ? MAX_ISLAND_WORK / n : 1);
+    ErlNifSInt64 max = substeps(t, stop, dtt, work / n > 0 ? work / n : 1);
     size_t record = is.m.rot ? 13 * 8 : 6 * 8;
     /* the sync points to pass: their states and posts, kept */
     ERL_NIF_TERM syncs = argv[8], passed = enif_make_list(env, 0), st_atom = enif_make_atom(env, "st");
@@ -1280,6 +1319,7 @@ static ERL_NIF_TERM island_run(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv
     ErlNifSInt64 steps = 0;
     feclearexcept(FE_ALL_EXCEPT);
     while (steps < max) {
+        if (steps > 0 && rw_now() - start >= budget) break;
         if (!island_substep(&is, t)) goto done;
         double step = 0.0;
         const double *np = is.next[0].p, *op = is.st[0].p;
@@ -1351,6 +1391,22 @@ done:
     return result;
 }
 
+static ERL_NIF_TERM island_run_dirty(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[]) {
+    (void)argc;
+    return island(env, argv, rw_now(), ISLAND_BUDGET_DIRTY_US, MAX_ISLAND_WORK_DIRTY);
+}
+
+static ERL_NIF_TERM island_run(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[]) {
+    int n;
+    const ERL_NIF_TERM *spheres;
+    if (enif_get_tuple(env, argv[4], &n, &spheres) && n >= DIRTY_MEMBERS)
+        return enif_schedule_nif(env, "island_run_dirty", ERL_NIF_DIRTY_JOB_CPU_BOUND, island_run_dirty, argc, argv);
+    ErlNifTime start = rw_now();
+    ERL_NIF_TERM result = island(env, argv, start, ISLAND_BUDGET_US, MAX_ISLAND_WORK);
+    rw_spend(env, start);
+    return result;
+}
+
 /*
  * measure(Bin, Size): rw_states:seal/3's measurement of the positions of
  * the states in Bin (Size bytes each, at most MAX_SCAN): {Box, Reach},
@@ -1416,6 +1472,19 @@ static ERL_NIF_TERM huge_pages(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv
     return enif_make_ulong(env, advised);
 }
 
+/* The loops whose calls are short by their bounds (MAX_SUBSTEPS, MAX_SCAN),
+   their time told to the scheduler. */
+#define TIMED(name)                                                                     \
+    static ERL_NIF_TERM timed_##name(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[]) { \
+        ErlNifTime start = rw_now();                                                    \
+        ERL_NIF_TERM result = name(env, argc, argv);                                    \
+        rw_spend(env, start);                                                           \
+        return result;                                                                  \
+    }
+TIMED(free_run)
+TIMED(first_touch)
+TIMED(measure)
+
 /* layouts(): where this library reads the Erlang records (rw_records.h). */
 static ERL_NIF_TERM layouts(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[]) {
     (void)argc;
@@ -1425,16 +1494,18 @@ static ERL_NIF_TERM layouts(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
 
 static ErlNifFunc funcs[] = {
     {"nif_layouts", 0, layouts, 0},
-    {"nif_free_run", 13, free_run, 0},
-    {"nif_first_touch", 10, first_touch, 0},
+    {"nif_free_run", 13, timed_free_run, 0},
+    {"nif_first_touch", 10, timed_first_touch, 0},
     {"nif_island_run", 10, island_run, 0},
-    {"nif_measure", 2, measure, 0},
-    {"nif_huge_pages", 0, huge_pages, 0},
+    {"nif_measure", 2, timed_measure, 0},
+    /* (it reads a file: off the normal schedulers) */
+    {"nif_huge_pages", 0, huge_pages, ERL_NIF_DIRTY_JOB_IO_BOUND},
     {"nif_cells_new", 0, rw_cells_new, 0},
     {"nif_cells_store", 5, rw_cells_store, 0},
     {"nif_cells_probe", 4, rw_cells_probe, 0},
     {"nif_cells_delete", 4, rw_cells_delete, 0},
-    {"nif_cells_gc", 2, rw_cells_gc, 0},
+    {"nif_cells_gc", 3, rw_cells_gc, 0},
+    {"nif_cells_free", 1, rw_cells_free, ERL_NIF_DIRTY_JOB_CPU_BOUND},
     {"nif_cells_dump", 1, rw_cells_dump, 0},
 };
 

@@ -99,7 +99,7 @@ options() ->
      {migrate, boolean, "over several nodes, place the bodies anew at a checkpoint that finds a tenth of them in "
       "other nodes' space (default true)"},
      {groups, boolean, "step bodies in persistent contact as one entity (default true)"},
-     {group_max, count, "the most bodies in one contact group (default 1024)"},
+     {group_max, {count, rw_regroup:max_allowed()}, "the most bodies in one contact group (default 1024)"},
      {native, boolean, "the engine's C loops where their library loads; false runs its Erlang code alone, "
       "with the same frames (default: the application's native, true)"},
      {watchdog_ms, count, "how long GVT may stand still before the run restarts (default 10000)"},
@@ -112,10 +112,10 @@ options() ->
      {on_frame, callback, "run/2: fun(Frame) -> _, for every frame in order"},
      {on_progress, callback, "run/2: fun(Stats) -> _, once per frame"}].
 
--type kind() :: ms | count | non_neg | boolean | path | callback | nodes | {one_of, [atom()]}.
+-type kind() :: ms | count | {count, pos_integer()} | non_neg | boolean | path | callback | nodes | {one_of, [atom()]}.
 %% The values an option takes: ms is a number above 0, count an integer
-%% above 0, non_neg an integer from 0, path a file name, callback a fun of
-%% one argument.
+%% above 0 ({count, Max}: at most Max), non_neg an integer from 0, path a
+%% file name, callback a fun of one argument.
 
 %% @doc Print the API and every option with its values and default.
 -spec help() -> ok.
@@ -139,6 +139,7 @@ help() ->
 
 kind_text(ms) -> "ms > 0";
 kind_text(count) -> "integer > 0";
+kind_text({count, Max}) -> "integer 1.." ++ integer_to_list(Max);
 kind_text(non_neg) -> "integer >= 0";
 kind_text(boolean) -> "true | false";
 kind_text(path) -> "file name";
@@ -501,6 +502,7 @@ check_values([{K, V, Kind} | Rest]) ->
 
 valid(ms, V) -> is_number(V) andalso V > 0;
 valid(count, V) -> is_integer(V) andalso V > 0 andalso V =< 1 bsl 20;
+valid({count, Max}, V) -> is_integer(V) andalso V > 0 andalso V =< Max;
 valid(non_neg, V) -> is_integer(V) andalso V >= 0 andalso V =< 1 bsl 30;
 valid(boolean, V) -> is_boolean(V);
 valid(path, V) -> is_list(V) orelse is_binary(V);

@@ -302,9 +302,19 @@ cells_probe(Store, Write, Spans, Dt) ->
 cells_delete(Store, Owner, R, Cells) ->
     ?TIMED(nif_cells_delete(Store, Owner, R, Cells)).
 
-%% Each writer keeps the segments of its own that end at Gvt or later.
+%% Each writer keeps the segments of its own that end at Gvt or later. (A
+%% large store is swept in slices, each a call of at most about half a
+%% time slice, each going on where the one before stopped; the writes left
+%% without segments are freed on a dirty scheduler.)
 -spec cells_gc(cells(), non_neg_integer()) -> ok.
-cells_gc(Store, Gvt) -> ?TIMED(nif_cells_gc(Store, Gvt)).
+cells_gc(Store, Gvt) -> cells_gc(Store, Gvt, 0).
+
+cells_gc(Store, Gvt, From) ->
+    case ?TIMED(nif_cells_gc(Store, Gvt, From)) of
+        ok -> ok;
+        free -> ?TIMED(nif_cells_free(Store));
+        Next -> cells_gc(Store, Gvt, Next)
+    end.
 
 %% All segments, per cell and writer, newest first: {Cell, Owner, [{Ta,
 %% Tb, write's box, write's T0, member spans}]} (a box with a corner past
@@ -318,5 +328,6 @@ nif_cells_new() -> erlang:nif_error(not_loaded).
 nif_cells_store(_Store, _Owner, _Write, _Spans, _UpTo) -> erlang:nif_error(not_loaded).
 nif_cells_probe(_Store, _Write, _Spans, _Dt) -> erlang:nif_error(not_loaded).
 nif_cells_delete(_Store, _Owner, _R, _Cells) -> erlang:nif_error(not_loaded).
-nif_cells_gc(_Store, _Gvt) -> erlang:nif_error(not_loaded).
+nif_cells_gc(_Store, _Gvt, _From) -> erlang:nif_error(not_loaded).
+nif_cells_free(_Store) -> erlang:nif_error(not_loaded).
 nif_cells_dump(_Store) -> erlang:nif_error(not_loaded).

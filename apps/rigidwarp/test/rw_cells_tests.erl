@@ -68,6 +68,39 @@ bad_keys_are_badarg_test() ->
             ?assertNotEqual(Before, rw_native:cells_dump(Store))
     end.
 
+%% A store of tens of thousands of cells is swept in slices (calls of at
+%% most half a time slice each, rw_native:cells_gc/2 calling again): the
+%% same segments as the Erlang store keeps, and the cells left empty gone.
+large_sweep_test_() ->
+    case rw_native:loaded() of
+        false -> [];
+        true -> {timeout, 120, fun large_sweep/0}
+    end.
+
+large_sweep() ->
+    Model = #model{},
+    Writes = [{Owner, T0, write(Model, Owner, T0, [Body], 12)}
+              || I <- lists:seq(1, 1000), T0 <- [0, 12], Owner <- [{owner, I}],
+                 Body <- [{I, {10.0 * (I rem 60), 10.0 * (I div 60) + 0.4 * T0, 0.0}, {300.0, 0.0, 0.0}}]],
+    Store = fun(S0) ->
+                    lists:foldl(fun({Owner, T0, {Write, Spans}}, S) ->
+                                        rw_cells:store(Owner, Write, Spans, none, T0 + 11, #{}, S)
+                                end, S0, Writes)
+            end,
+    {E, N} = {Store(rw_cells:new(Model, ?DT, erlang)), Store(rw_cells:new(Model, ?DT, native))},
+    Before = rw_cells:contents(N),
+    ?assertEqual(rw_cells:contents(E), Before),
+    _ = erlang:trace_pattern({rw_native, nif_cells_gc, 3}, true, [call_count]),
+    {E1, N1} = try {rw_cells:gc(12, E), rw_cells:gc(12, N)}
+               after
+                   {call_count, Calls} = erlang:trace_info({rw_native, nif_cells_gc, 3}, call_count),
+                   _ = erlang:trace_pattern({rw_native, nif_cells_gc, 3}, false, [call_count]),
+                   ?assert(Calls >= 2)
+               end,
+    Left = rw_cells:contents(N1),
+    ?assertEqual(rw_cells:contents(E1), Left),
+    ?assert(length(Left) < length(Before)).
+
 prop_same(Model) ->
     ?FORALL(Ops, ops(), begin
                             _ = run(Model, Ops),

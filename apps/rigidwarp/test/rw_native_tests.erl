@@ -203,7 +203,8 @@ limits_test() ->
     Island = fun(T, Stop) -> rw_native:island_run(T, Stop, 1, M, Spheres, [], States, none, [], []) end,
     ?assertEqual(fallback, Island(0, Max)),
     ?assertEqual(fallback, Island(-1, 10)),
-    ?assertMatch({2048, _, [_, _], none, []}, Island(0, 1 bsl 62)).
+    %% (at most 4096 member-substeps, fewer where half a time slice is up)
+    ?assertMatch({T1, _, [_, _], none, []} when T1 > 0 andalso T1 =< 2048, Island(0, 1 bsl 62)).
 
 %% The C compiler's flags that keep the results those of the Erlang code
 %% come last, whatever CFLAGS the make command line gives.

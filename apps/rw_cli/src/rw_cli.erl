@@ -29,7 +29,8 @@
       --ccd on|off           swept (continuous) collision tests (default: the scene's)
       --groups on|off        timewarp: step bodies in persistent contact as one entity
                              (default on; off is the paper's one entity per body)
-      --group-max N          timewarp: the most bodies in one contact group (default 1024)
+      --group-max N          timewarp: the most bodies in one contact group (default 1024,
+                             at most 4096)
       --native on|off        timewarp: the engine's C loops where their library loads (default
                              on); off runs its Erlang code alone, slower, with the same frames;
                              the summary's native says whether they ran (on every node)
