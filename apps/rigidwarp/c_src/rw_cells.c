@@ -9,7 +9,7 @@
  * Here is rw_cells' bookkeeping, in integers (which segments a write
  * meets by times, boxes and member spans; storing, truncating and sweeping
  * them), and the scan of the member pairs so found for their first touch
- * (rw_native.c's, the same float operations as rw_states:first_touch/6).
+ * (rw_scan.c's, the same float operations as rw_states:first_touch/6).
  * A probe hands back only the pairs of the earliest touch, each with the
  * window of its substep and the other member's payload, and any pair it
  * could not scan with its whole window: rw_cells' Erlang code scans those

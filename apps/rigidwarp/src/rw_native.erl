@@ -1,7 +1,8 @@
-%% The engine's hot loops in C (c_src/rw_native.c, built into
-%% priv/rw_native.so): a body's free flight and a contact group's island,
-%% the substeps of rw_chain; the scan of two bodies' packed positions for
-%% their first touch and the measure of a group's states, in rw_states.
+%% The engine's hot loops in C (c_src/, one file per concern, built into
+%% priv/rw_native.so; its function table in c_src/rw_native.c): a body's
+%% free flight and a contact group's island, the substeps of rw_chain; the
+%% scan of two bodies' packed positions for their first touch and the
+%% measure of a group's states, in rw_states; a bucket's cells, rw_cells.
 %% Each does the Erlang code's float operations in the same order, so the
 %% results are bit for bit the same; where the Erlang code would raise or
 %% fail on its arguments, the C code answers fallback (or stops short) and
