@@ -3,11 +3,13 @@
    (rw_physics.c). */
 #include <string.h>
 #include "rw_nifs.h"
+#include "rw_slice.h"
 #include "rw_terms.h"
 
 /* A call takes at most this many substeps (the caller calls again for
-   more): some 40-200 us. */
+   more): some 40-200 us; substeps in a millisecond, about. */
 #define MAX_SUBSTEPS 4096
+#define SUBSTEPS_PER_MS 25000
 /* the fixtures a body alone may have near it */
 #define MAX_NEAR 16
 
@@ -100,18 +102,12 @@ ERL_NIF_TERM rw_free_run(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[]) {
     unsigned char *out = states.data;
     struct model model = {.dt = dt, .gravity = gravity, .rot = rotation, .integrator = integrator};
     memcpy(model.g, g, sizeof model.g);
-    struct mstate st, next;
-    static const double zero[3] = {0.0, 0.0, 0.0};
-    memcpy(st.p, s, 3 * sizeof(double));
-    memcpy(st.v, s + 3, 3 * sizeof(double));
-    memcpy(st.q, q, sizeof st.q);
-    memcpy(st.w, w, sizeof st.w);
-    feclearexcept(FE_ALL_EXCEPT);
+    double x = s[0], y = s[1], z = s[2], vx = s[3], vy = s[4], vz = s[5];
+    flags_clear();
 
     ErlNifSInt64 n = 0;
     while (n < max && t < last && t != sync && t != busy) {
         if (!always) {
-            double x = st.p[0], y = st.p[1], z = st.p[2];
             double dx = x - zone[0], dy = y - zone[1], dz = z - zone[2];
             double d2 = dx * dx + dy * dy + dz * dz;
             CHECK(dx); CHECK(dy); CHECK(dz); CHECK(dx * dx); CHECK(dy * dy); CHECK(dz * dz); CHECK(d2);
@@ -119,19 +115,24 @@ ERL_NIF_TERM rw_free_run(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[]) {
             if (!(d2 <= zone[3])) break;
             if (near && !rw_touches_none(fixtures, (int)nfixtures, x, y, z, radius, &bad)) break;
         }
-        /* rw_integrate:move/10 with a zero pseudo-velocity, the island's
-           rule (the flags tell where the Erlang code would raise) */
-        rw_advance(&model, &st, st.v, st.w, zero, &next);
-        double nx = next.p[0], ny = next.p[1], nz = next.p[2], nvx = next.v[0], nvy = next.v[1], nvz = next.v[2];
-        double step = first ? step_of(next.p, st.p) : 0.0;
-        if (fetestexcept(BAD_FLAGS)) bad = 1;
-        if (bad) break;
+        /* rw_integrate:move/10 with a zero pseudo-velocity and
+           rw_quat:integrate/3, the island's rules */
+        double nx, ny, nz, nvx, nvy, nvz, nq[4];
+        move_coord(&model, 0, x, vx, 0.0, 1, &nx, &nvx);
+        move_coord(&model, 1, y, vy, 0.0, 1, &ny, &nvy);
+        move_coord(&model, 2, z, vz, 0.0, 1, &nz, &nvz);
+        if (spinning) quat_integrate(q, w, dt, nq);
+        double step = 0.0;
+        if (first) {
+            double p1[3] = {nx, ny, nz}, p0[3] = {x, y, z};
+            step = step_of(p1, p0);
+        }
 
         put_double(out, nx); put_double(out + 8, ny); put_double(out + 16, nz);
         put_double(out + 24, nvx); put_double(out + 32, nvy); put_double(out + 40, nvz);
         if (rotation) {
-            for (int i = 0; i < 4; i++) put_double(out + 48 + 8 * i, next.q[i]);
-            for (int i = 0; i < 3; i++) put_double(out + 80 + 8 * i, next.w[i]);
+            for (int i = 0; i < 4; i++) put_double(out + 48 + 8 * i, spinning ? nq[i] : q[i]);
+            for (int i = 0; i < 3; i++) put_double(out + 80 + 8 * i, w[i]);
         }
         out += record;
         n++;
@@ -143,18 +144,24 @@ ERL_NIF_TERM rw_free_run(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[]) {
         } else {
             grow(box, &reach, nx, ny, nz, step);
         }
-        st = next;
+        x = nx; y = ny; z = nz; vx = nvx; vy = nvy; vz = nvz;
+        if (spinning) memcpy(q, nq, sizeof q);
         t += dtt;
     }
-    feclearexcept(FE_ALL_EXCEPT);
+    /* (a result that is not finite, where the Erlang code raises, sets the
+       flags; read once at the end, as the call is dropped whole for it: a
+       read per substep took as long as the substep) */
+    if (flags_bad()) bad = 1;
+    flags_clear();
+    rw_spend_work(env, (long)n, SUBSTEPS_PER_MS);
     if (bad || !enif_realloc_binary(&states, n * record)) {
         enif_release_binary(&states);
         return atom_fallback;
     }
-    double pv[6] = {st.p[0], st.p[1], st.p[2], st.v[0], st.v[1], st.v[2]};
+    double pv[6] = {x, y, z, vx, vy, vz};
     /* (no spin leaves the orientation: the term given) */
     ERL_NIF_TERM orientation =
-        rotation ? (spinning ? enif_make_tuple2(env, rw_make_doubles(env, st.q, 3), enif_make_double(env, st.q[3]))
+        rotation ? (spinning ? enif_make_tuple2(env, rw_make_doubles(env, q, 3), enif_make_double(env, q[3]))
                              : argv[10])
                  : atom_undefined;
     return enif_make_tuple5(env, enif_make_int64(env, t), rw_make_doubles(env, pv, 6), orientation,

@@ -5,7 +5,7 @@
  * integrated, the rules of rw_physics.c.
  *
  * Where the free flight checks each intermediate result, this reads the
- * floating-point exception flags (BAD_FLAGS): a substep that raises one
+ * floating-point exception flags (flags_bad()): a substep that raises one
  * is dropped, and the Erlang code takes it, which raises badarith there.
  */
 #include <stdlib.h>
@@ -417,14 +417,14 @@ static ERL_NIF_TERM island(ErlNifEnv *env, const ERL_NIF_TERM argv[], ErlNifTime
         if (!enif_alloc_binary(max * record, &bins[nbins])) goto done;
 
     ErlNifSInt64 steps = 0;
-    feclearexcept(FE_ALL_EXCEPT);
+    flags_clear();
     while (steps < max) {
         if (steps > 0 && rw_now() - start >= budget) break;
         if (!island_substep(&is, t)) goto done;
         double step = 0.0;
         const double *np = is.next[0].p, *op = is.st[0].p;
         if (measured && first) step = step_of(np, op);
-        if (fetestexcept(BAD_FLAGS)) break;
+        if (flags_bad()) break;
         if (t == sync) {
             ERL_NIF_TERM *sts = terms, *posts = terms + n;
             for (int k = 0; k < n; k++) {
@@ -466,7 +466,7 @@ static ERL_NIF_TERM island(ErlNifEnv *env, const ERL_NIF_TERM argv[], ErlNifTime
         steps++;
         t += dtt;
     }
-    feclearexcept(FE_ALL_EXCEPT);
+    flags_clear();
     {
         ERL_NIF_TERM out_bins = enif_make_list(env, 0);
         for (int k = n - 1; k >= 0; k--) {

@@ -5,12 +5,15 @@
 #include <string.h>
 #include "rw_cells.h"
 #include "rw_nifs.h"
+#include "rw_slice.h"
 #include "rw_terms.h"
 
 /* first_touch/10 leaves longer scans to the Erlang code (the reach skips
    most of a long one, and a scan of this many takes well under a
    millisecond). */
 #define MAX_SCAN 65536
+/* positions measured in a millisecond, about */
+#define MEASURED_PER_MS 200000
 
 /*
  * first_touch(BinA, SizeA, IA, BinB, SizeB, IB, Left, Sum, Margin, Reach)
@@ -109,13 +112,14 @@ ERL_NIF_TERM rw_measure(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[]) {
     const unsigned char *p = bin.data;
     double prev[3] = {get_double(p), get_double(p + 8), get_double(p + 16)}, reach = 0.0;
     double box[6] = {prev[0], prev[1], prev[2], prev[0], prev[1], prev[2]};
-    feclearexcept(FE_ALL_EXCEPT);
+    flags_clear();
     for (size_t i = 0; i < n; i++, p += size) {
         double pos[3] = {get_double(p), get_double(p + 8), get_double(p + 16)};
         grow(box, &reach, pos[0], pos[1], pos[2], step_of(pos, prev));
         memcpy(prev, pos, sizeof prev);
     }
-    int overflow = fetestexcept(BAD_FLAGS) != 0;
-    feclearexcept(FE_ALL_EXCEPT);
+    int overflow = flags_bad();
+    flags_clear();
+    rw_spend_work(env, (long)n, MEASURED_PER_MS);
     return enif_make_tuple2(env, rw_make_doubles(env, box, 6), overflow ? atom_undefined : enif_make_double(env, reach));
 }

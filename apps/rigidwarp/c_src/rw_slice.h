@@ -18,6 +18,14 @@ static inline ErlNifTime rw_now(void) { return enif_monotonic_time(ERL_NIF_USEC)
 #define RW_REPORT_SLICE 1
 #endif
 
+/* Work done at about per_ms units a millisecond, as a share of the slice:
+   for the short loops, which would spend a good part of their time
+   reading the clock (units of less than 1 % go uncounted). */
+static inline void rw_spend_work(ErlNifEnv *env, long units, long per_ms) {
+    long percent = units * 100 / per_ms;
+    if (RW_REPORT_SLICE && percent > 0) (void)enif_consume_timeslice(env, percent > 100 ? 100 : (int)percent);
+}
+
 /* The time since start, as a share of the slice (calls under 10 us are
    left uncounted: a process makes thousands of them per slice). */
 static inline void rw_spend(ErlNifEnv *env, ErlNifTime start) {
