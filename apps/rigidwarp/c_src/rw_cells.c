@@ -87,9 +87,9 @@ struct cell {
     size_t n, cap;
 };
 
-/* (dead: the writes no segment refers to any more, their environments
-   not yet freed: freeing a large group's write takes milliseconds, which
-   rw_cells_free/3 takes on a dirty scheduler) */
+/* (dead: the writes of large groups no segment refers to any more, their
+   environments not yet freed: freeing one takes up to milliseconds, which
+   rw_cells_free/1 takes on a dirty scheduler) */
 struct cells {
     ErlNifMutex *lock;
     struct cell **table;
@@ -256,10 +256,20 @@ static struct cell *add_cell(struct cells *cs, const struct key *k) {
     return c;
 }
 
+/* A write of this many members or more is freed on a dirty scheduler (a
+   write of 500 took up to 4 ms); a smaller one at once (a switch to a
+   dirty scheduler and back costs more than freeing it). */
+#define LARGE_WRITE 64
+
 static void release_write(struct cells *cs, struct write *w) {
     if (--w->refs > 0) return;
-    w->next_dead = cs->dead;
-    cs->dead = w;
+    if (w->n >= LARGE_WRITE) {
+        w->next_dead = cs->dead;
+        cs->dead = w;
+    } else {
+        enif_free_env(w->env);
+        enif_free(w);
+    }
 }
 
 static void free_dead(struct cells *cs) {
