@@ -10,7 +10,7 @@ ESCRIPT = _build/default/bin/rigidwarp
 # The benchmarks and the shell run in rebar3's VM, so they get them here.
 VM_FLAGS = +sbtu +MMscs 4096 +MMsco false
 
-.PHONY: all deps build test docs viewer-test bench accuracy run shell clean
+.PHONY: all deps build test sanitize docs viewer-test bench accuracy run shell clean
 
 all: build
 
@@ -24,6 +24,12 @@ build: deps
 # eunit + PropEr + common_test + xref + module graph + API docs + dialyzer, then one closing count line.
 test: build
 	@scripts/run-tests
+
+# The C loops' parity properties against the library built with
+# AddressSanitizer and UndefinedBehaviorSanitizer (a temporary copy: the
+# build's priv/rw_native.so is left alone); fails on any report.
+sanitize: deps
+	@MODULES=$${MODULES:-rw_native_tests,rw_native_island_tests,rw_cells_tests} scripts/sanitize
 
 # API docs (edoc): apps/rigidwarp/doc/index.html (rigidwarp, the shell API;
 # rw_scene and rw_frames, the file formats) and apps/rw_physics/doc/.

@@ -8,14 +8,14 @@
 -export([bench_machine/1, bench_parallelism/1, bench_scale/1, bench_scale_rounds/1]).
 -export([nodes_flags/1,
          help/1, validate_every_scenario/1, summary_is_last_line/1, frames_file/1,
-         bad_flags_exit_2/1, impossible_run_refused_at_once/1, integrator_and_ccd_flags/1, groups_flags/1, bad_scene_exit_2/1, scenes_lists_bundled/1,
+         bad_flags_exit_2/1, impossible_run_refused_at_once/1, integrator_and_ccd_flags/1, groups_flags/1, native_flag/1, bad_scene_exit_2/1, scenes_lists_bundled/1,
          bad_input_corpus/1,
          generated_bad_inputs/1, progress_line/1, snapshot_png/1, shell_api_rejects_bad_arguments/1,
          summary_key_order/1, version/1, scene_names/1, frames_must_match_scene/1, live_view_reports/1]).
 
 suite() -> [{timetrap, {minutes, 5}}].
 
-all() -> [help, version, validate_every_scenario, summary_is_last_line, frames_file, integrator_and_ccd_flags, groups_flags,
+all() -> [help, version, validate_every_scenario, summary_is_last_line, frames_file, integrator_and_ccd_flags, groups_flags, native_flag,
           nodes_flags,
           bad_flags_exit_2, impossible_run_refused_at_once,
           bad_scene_exit_2, scene_names, scenes_lists_bundled, bad_input_corpus, generated_bad_inputs, progress_line,
@@ -159,6 +159,20 @@ groups_flags(Config) ->
     ?assertEqual(Default, Alone),
     ?assertEqual(Default, Pairs).
 
+%% --native off runs the engine's Erlang code alone: the same frames file,
+%% and the summary says which ran.
+native_flag(Config) ->
+    Scene = rw_test_lib:test_scene("pile_40.json"),
+    Run = fun(Name, Flags) ->
+                  {Bin, Stdout} = run_frames(Config, Scene, "400", Name, Flags),
+                  {Bin, last_json_line(Stdout)}
+          end,
+    {Default, #{<<"native">> := true}} = Run("default.jsonl", []),
+    {On, #{<<"native">> := true}} = Run("on.jsonl", ["--native", "on"]),
+    {Off, #{<<"native">> := false}} = Run("off.jsonl", ["--native", "off"]),
+    ?assertEqual(Default, On),
+    ?assertEqual(Default, Off).
+
 %% --nodes 2 and 3 write the reference's frames file, and say what crossed
 %% between the nodes; a node that cannot be reached is one line and exit 1.
 nodes_flags(Config) ->
@@ -195,6 +209,9 @@ bad_flags_exit_2(_Config) ->
              {["run", Scene, "--ccd"], "--ccd needs a value"},
              {["run", Scene, "--groups", "sometimes"], "--groups must be on or off, got sometimes"},
              {["run", Scene, "--group-max", "0"], "--group-max must be a positive integer, got 0"},
+             {["run", Scene, "--group-max", "4097"], "--group-max must be at most 4096, got 4097"},
+             {["run", Scene, "--native", "yes"], "--native must be on or off, got yes"},
+             {["run", Scene, "--native"], "--native needs a value"},
              {["run", Scene, "--nodes", "0"], "--nodes must be a positive integer, got 0"},
              {["run", Scene, "--nodes", "65"], "--nodes must be at most 64, got 65"},
              {["run", Scene, "--connect", "nohost"], "--connect takes node names as name@host"},

@@ -4,8 +4,10 @@
 %% their whole length (test/scenes/) and for random scenes (gases, piles,
 %% spheres thrown onto planes, cylinders and boxes), whatever the
 %% schedulers, stride, bucket count, contact group setting or message
-%% timing; each case also asserts that contacts really happened. Also
-%% liveness (random delays, watchdog) and leaks.
+%% timing; each case also asserts that contacts really happened. The
+%% group erlang_alone compares again with the engine's C loops off (option
+%% native => false), fewer runs of each. Also liveness (random delays,
+%% watchdog) and leaks.
 -module(engine_SUITE).
 -include_lib("proper/include/proper.hrl").
 -include_lib("common_test/include/ct.hrl").
@@ -19,15 +21,18 @@
          random_scenes_equal/1,
          random_delays_terminate_and_equal/1, watchdog_names_stuck_body/1,
          memory_stays_bounded/1, no_leaks_after_100_runs/1, escript_frames_identical/1, frames_api/1, frame_times_only/1, ring_keeps_last_frames/1,
-         contact_groups/1, crashes_restart_from_checkpoint/1, stats_tell_the_truth/1, traced_run/1]).
+         contact_groups/1, crashes_restart_from_checkpoint/1, stats_tell_the_truth/1, traced_run/1,
+         c_loops_run_only_when_asked/1]).
+-export([init_per_group/2, end_per_group/2]).
 
 suite() -> [{timetrap, {minutes, 15}}].
 
-all() -> [{group, equality}, {group, liveness}, {group, lifecycle}].
+all() -> [{group, equality}, {group, erlang_alone}, {group, liveness}, {group, lifecycle}].
 
 groups() ->
     [{equality, [], [scenarios_equal, contact_scenes_equal, strides_and_buckets_equal, throttled_runs_equal,
                      random_scenes_equal, escript_frames_identical, contact_groups]},
+     {erlang_alone, [], [c_loops_run_only_when_asked, scenarios_equal, contact_scenes_equal, random_scenes_equal]},
      {liveness, [], [random_delays_terminate_and_equal, watchdog_names_stuck_body]},
      {lifecycle, [], [memory_stays_bounded, no_leaks_after_100_runs, frames_api, frame_times_only, ring_keeps_last_frames,
                       crashes_restart_from_checkpoint, stats_tell_the_truth, traced_run]}].
@@ -37,6 +42,19 @@ init_per_suite(Config) ->
     Config.
 
 end_per_suite(_Config) -> ok.
+
+init_per_group(erlang_alone, Config) ->
+    [{run_opts, #{native => false}}, {schedulers, [2]}, {random_runs, 100} | Config];
+init_per_group(_Group, Config) ->
+    Config.
+
+end_per_group(_Group, _Config) -> ok.
+
+%% The options every Time Warp run of a case adds (the group's), the
+%% scheduler counts it compares on, and how many random scenes it runs.
+run_opts(Config) -> proplists:get_value(run_opts, Config, #{}).
+schedulers(Config) -> proplists:get_value(schedulers, Config, [1, 2]).
+random_runs(Config) -> proplists:get_value(random_runs, Config, 300).
 
 %%% Helpers
 
@@ -110,7 +128,7 @@ contact_free(File) ->
 
 %%% Equality
 
-scenarios_equal(_Config) ->
+scenarios_equal(Config) ->
     Files = scenario_files(),
     ?assert(length(Files) > 0),
     Compared = [begin
@@ -123,14 +141,14 @@ scenarios_equal(_Config) ->
                         false -> ?assert(Pairs + Fixed > 0)
                     end,
                     [begin
-                         {Tw, #{efficiency := Eff}} = with_schedulers(S, fun() -> frames(timewarp, F, Opts) end),
+                         {Tw, #{efficiency := Eff}} = with_schedulers(S, fun() -> frames(timewarp, F, maps:merge(run_opts(Config), Opts)) end),
                          assert_same(io_lib:format("~s on ~b schedulers", [filename:basename(F), S]), Ref, Tw),
                          ct:pal("~s: ~b frames equal on ~b scheduler(s), efficiency ~.3f",
                                 [filename:basename(F), length(Ref), S, Eff])
-                     end || S <- [1, 2]],
+                     end || S <- schedulers(Config)],
                     F
                 end || F <- Files],
-    {comment, io_lib:format("~b scenarios x 2 scheduler counts", [length(Compared)])}.
+    {comment, io_lib:format("~b scenarios x ~b scheduler counts", [length(Compared), length(schedulers(Config))])}.
 
 %% Contact-heavy test scenes (test/scenes/) over their whole length, on 1
 %% and 2 schedulers, with contact groups on (the default) and off (one
@@ -141,7 +159,7 @@ scenarios_equal(_Config) ->
 %% and velocity Verlet. The reference's counts and each run's events and
 %% regroups are asserted, so the comparison cannot quietly become one of
 %% free flight.
-contact_scenes_equal(_Config) ->
+contact_scenes_equal(Config) ->
     Scenes = [{"pile_40.json", #{pairs => 40000, fixed => 30000}},
               {"rain_on_logs.json", #{pairs => 10000, fixed => 40000}}],
     [begin
@@ -159,7 +177,7 @@ contact_scenes_equal(_Config) ->
          [?assert(N > 0) || {_, N} <- Touched],
          [begin
               {Tw, #{events := Events, rollbacks := Rollbacks, regroups := Regroups}} =
-                  with_schedulers(S, fun() -> frames(timewarp, Scene, Groups) end),
+                  with_schedulers(S, fun() -> frames(timewarp, Scene, maps:merge(run_opts(Config), Groups)) end),
               assert_same(io_lib:format("~s on ~b schedulers, ~p", [Name, S, Groups]), Ref, Tw),
               ct:pal("~s on ~b scheduler(s), ~p: ~b frames equal; ~b events, ~b rollbacks, ~b regroups",
                      [Name, S, Groups, length(Tw), Events, Rollbacks, Regroups]),
@@ -168,7 +186,7 @@ contact_scenes_equal(_Config) ->
                   #{groups := false} -> ?assert(Events >= Pairs), ?assertEqual(0, Regroups);
                   #{} -> ?assert(Events > 0), ?assert(Regroups > 0)
               end
-          end || S <- [1, 2], Groups <- [#{}, #{groups => false}]]
+          end || S <- schedulers(Config), Groups <- [#{}, #{groups => false}]]
      end || {Name, Least} <- Scenes],
     ok.
 
@@ -229,8 +247,9 @@ throttled_runs_equal(_Config) ->
 %% generator reached what it is for: every kind of scene often, contacts
 %% between spheres and with every kind of fixture, regrouping, and few
 %% scenes that could not be placed.
-random_scenes_equal(_Config) ->
+random_scenes_equal(Config) ->
     Tally = ets:new(tally, [public]),
+    Runs = random_runs(Config),
     Prop = ?FORALL({SceneMap, Stride, Buckets, Sched, Groups}, {scene_map(), stride(), buckets(), oneof([1, 2]), group_options()},
                    case rw_scene:from_map(SceneMap#{<<"stride_ms">> => Stride * maps:get(<<"substep_ms">>, SceneMap)}, #{}) of
                        {error, E} ->
@@ -238,13 +257,13 @@ random_scenes_equal(_Config) ->
                            _ = tally(Tally, [not_placed]),
                            collect(not_placed, ?WHENFAIL(ct:pal("~s", [rw_scene:format_error(E)]), true));
                        {ok, Scene} ->
-                           same_as_reference(Scene, Sched, Groups#{buckets => Buckets},
+                           same_as_reference(Scene, Sched, maps:merge(run_opts(Config), Groups#{buckets => Buckets}),
                                              io_lib:format("scene ~p~nstride ~p, ~p buckets, ~p schedulers, ~p",
                                                            [SceneMap, Stride, Buckets, Sched, Groups]), Tally)
                    end),
-    true = proper:quickcheck(Prop, [{numtests, 300}, {to_file, user}, long_result]),
+    true = proper:quickcheck(Prop, [{numtests, Runs}, {to_file, user}, long_result]),
     rw_test_lib:check_runaways(Tally),
-    check_tally(Tally, 300),
+    check_tally(Tally, Runs),
     ok.
 
 %% What the runs of a property met, counted in Tally: each run's kind of
@@ -780,4 +799,44 @@ sample(Sim, Acc) ->
     case rigidwarp:stats(Sim) of
         #{status := running} = S -> timer:sleep(20), sample(Sim, [S | Acc]);
         _ -> lists:reverse(Acc)
+    end.
+
+%% The switch reaches every process of a run: with native => false no
+%% process of the run calls the C loops, and the summary says so; with the
+%% default they are called (the pile's groups through the C island, its
+%% buckets' segments in C), and the summary says that too. The frames are
+%% the reference's either way.
+c_loops_run_only_when_asked(_Config) ->
+    ?assert(rw_native:loaded()),
+    {ok, Pile} = rigidwarp:load(rw_test_lib:test_scene("pile_40.json"), #{until => 400}),
+    {Ref, _} = frames(reference, Pile, #{}),
+    Calls = [{free_run, 13}, {first_touch, 10}, {island_run, 10}, {measure, 2}, {cells_new, 0}, {cells_store, 5},
+             {cells_probe, 4}, {cells_delete, 4}, {cells_gc, 2}],
+    Counted = fun(Opts) ->
+                      Counter = spawn_link(fun() -> count_calls(#{}) end),
+                      _ = [erlang:trace_pattern({rw_native, F, A}, true, [global]) || {F, A} <- Calls],
+                      _ = erlang:trace(new_processes, true, [call, {tracer, Counter}]),
+                      {Frames, Summary} = try frames(timewarp, Pile, Opts)
+                                          after
+                                              _ = erlang:trace(new_processes, false, [call]),
+                                              _ = erlang:trace_pattern({rw_native, '_', '_'}, false, [global])
+                                          end,
+                      Delivered = erlang:trace_delivered(all),
+                      receive {trace_delivered, all, Delivered} -> ok end,
+                      Counter ! {self(), counts},
+                      receive {Counter, Counts} -> {Frames, Summary, Counts} end
+              end,
+    {OffFrames, #{native := false}, OffCounts} = Counted(#{native => false}),
+    {OnFrames, #{native := true}, OnCounts} = Counted(#{}),
+    ct:pal("C loops called with native off: ~p; on: ~p", [OffCounts, OnCounts]),
+    assert_same("native off", Ref, OffFrames),
+    assert_same("native on", Ref, OnFrames),
+    ?assertEqual(#{}, OffCounts),
+    ?assert(maps:get(island_run, OnCounts, 0) > 0),
+    ?assert(maps:get(cells_probe, OnCounts, 0) > 0).
+
+count_calls(Counts) ->
+    receive
+        {trace, _, call, {rw_native, F, _}} -> count_calls(maps:update_with(F, fun(N) -> N + 1 end, 1, Counts));
+        {From, counts} -> From ! {self(), Counts}
     end.

@@ -2,7 +2,8 @@
 %% reference's bit for bit on 1, 2 and 3 nodes (contact-heavy scenes and
 %% random ones), a node lost mid-run costs nothing, the peer nodes a run
 %% starts are gone when it ends, however it ends, and every node runs the
-%% engine's C loops.
+%% engine's C loops where it can load them (and the Erlang code, with the
+%% same frames, where it cannot).
 %%
 %% Most cases run over two peer nodes the suite starts once (a run given
 %% node names connects to them and loads the engine there); the cases of
@@ -14,13 +15,13 @@
 -include_lib("rigidwarp/include/rigidwarp.hrl").
 -include("rw_test.hrl").
 -export([all/0, suite/0, init_per_suite/1, end_per_suite/1]).
--export([peers_run_the_c_loops/1, every_scenario_equal/1, contact_scenes_equal/1, random_scenes_equal/1, piles_regroup_across_batches/1, own_peers_equal_and_stopped/1, node_killed_mid_run/1,
+-export([peers_run_the_c_loops/1, peer_without_library_equal/1, every_scenario_equal/1, contact_scenes_equal/1, random_scenes_equal/1, piles_regroup_across_batches/1, own_peers_equal_and_stopped/1, node_killed_mid_run/1,
          node_stopped_mid_run/1, lost_node_work_still_counted/1, bodies_move_to_the_node_of_their_space/1, peers_stopped_however_the_run_ends/1, cross_node_traffic_is_counted/1,
          bad_nodes_are_refused/1, watchdog_names_stuck_body_elsewhere/1]).
 
 suite() -> [{timetrap, {minutes, 10}}].
 
-all() -> [peers_run_the_c_loops, every_scenario_equal, contact_scenes_equal, random_scenes_equal, piles_regroup_across_batches, own_peers_equal_and_stopped, node_killed_mid_run,
+all() -> [peers_run_the_c_loops, peer_without_library_equal, every_scenario_equal, contact_scenes_equal, random_scenes_equal, piles_regroup_across_batches, own_peers_equal_and_stopped, node_killed_mid_run,
           node_stopped_mid_run, lost_node_work_still_counted, bodies_move_to_the_node_of_their_space, peers_stopped_however_the_run_ends, cross_node_traffic_is_counted,
           bad_nodes_are_refused, watchdog_names_stuck_body_elsewhere].
 
@@ -112,6 +113,41 @@ peers_run_the_c_loops(_Config) ->
                end || Peer <- Peers],
               ok
       end).
+
+%% A peer the library cannot be copied to (its TMPDIR does not exist) loads
+%% the engine without it and runs the Erlang code for its share of the
+%% bodies and buckets, beside this node's C loops: the frames are the
+%% reference's, and the summary says the C loops did not run on every node.
+peer_without_library_equal(Config) ->
+    ?assert(rw_native:loaded()),
+    Missing = filename:join(?config(priv_dir, Config), "no_such_dir"),
+    Old = os:getenv("TMPDIR"),
+    %% (a peer inherits this node's environment)
+    true = os:putenv("TMPDIR", Missing),
+    Started = try rw_nodes:start(2, 1)
+              after
+                  case Old of
+                      false -> os:unsetenv("TMPDIR");
+                      _ -> os:putenv("TMPDIR", Old)
+                  end
+              end,
+    {ok, #{nodes := [_, Peer]} = Nodes} = Started,
+    try
+        ?assertNot(erpc:call(Peer, rw_native, loaded, [])),
+        [begin
+             {Result, Frames} = frames(Scene, #{nodes => [Peer]}),
+             ?assertMatch({ok, #{restarts := 0, nodes := 2, native := false}}, Result),
+             {ok, #{cross_node_messages := Crossing}} = Result,
+             ?assert(Crossing > 0),
+             ?assertBitwise(Reference, Frames),
+             ct:pal("~s: ~b frames equal, C loops here and Erlang on ~s", [Name, length(Frames), Peer])
+         end || {Name, {Scene, Reference}} <- ?config(scenes, Config), lists:member(Name, ["pile_40", "cylinders_200"])],
+        %% (the run loaded the engine on the peer again, still without it)
+        ?assertNot(erpc:call(Peer, rw_native, loaded, [])),
+        ok
+    after
+        rw_nodes:stop(Nodes)
+    end.
 
 %% Every contact-heavy scene on 1, 2 and 3 nodes: the reference's frames.
 contact_scenes_equal(Config) ->

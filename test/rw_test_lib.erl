@@ -211,11 +211,13 @@ outcome(Fun) ->
     end.
 
 %% A double that C code standing for Erlang code finds awkward, a third of
-%% the time: signed zeros, subnormals, near the largest double (where the
-%% Erlang code raises); else any magnitude from 1e-20 to 1e20.
+%% the time: signed zeros, subnormals (the smallest, the largest), the
+%% smallest normal, near the largest double (where the Erlang code raises);
+%% else any magnitude from 1e-20 to 1e20.
 -spec awkward_double() -> float().
 awkward_double() ->
-    Specials = [0.0, -0.0, 5.0e-324, -2.2250738585072014e-308, 1.0e300, -1.0e300, 1.7976931348623157e308, 3.5, -0.25],
+    Specials = [0.0, -0.0, 5.0e-324, -5.0e-324, 2.225073858507201e-308, -2.2250738585072014e-308, 1.0e300, -1.0e300,
+                8.98846567431158e307, 1.7976931348623157e308, -1.7976931348623157e308, 3.5, -0.25],
     case rand:uniform(3) of
         1 -> lists:nth(rand:uniform(length(Specials)), Specials);
         _ -> (rand:uniform() - 0.5) * math:pow(10.0, rand:uniform(40) - 20)

@@ -9,7 +9,7 @@
  * Here is rw_cells' bookkeeping, in integers (which segments a write
  * meets by times, boxes and member spans; storing, truncating and sweeping
  * them), and the scan of the member pairs so found for their first touch
- * (rw_native.c's, the same float operations as rw_states:first_touch/6).
+ * (rw_scan.c's, the same float operations as rw_states:first_touch/6).
  * A probe hands back only the pairs of the earliest touch, each with the
  * window of its substep and the other member's payload, and any pair it
  * could not scan with its whole window: rw_cells' Erlang code scans those
@@ -22,6 +22,8 @@
 #include <stdlib.h>
 #include <string.h>
 #include "rw_cells.h"
+#include "rw_records.h"
+#include "rw_slice.h"
 
 /* A member's span in a segment: present from a to b. */
 struct mspan { long idx; ErlNifSInt64 a, b; };
@@ -41,6 +43,7 @@ struct payload {
 /* A write as stored: its copy, the writer and T0 in it, per member. */
 struct write {
     long refs;
+    struct write *next_dead;
     ErlNifEnv *env;
     ERL_NIF_TERM owner;
     ErlNifSInt64 t0;
@@ -84,10 +87,14 @@ struct cell {
     size_t n, cap;
 };
 
+/* (dead: the writes of large groups no segment refers to any more, their
+   environments not yet freed: freeing one takes up to milliseconds, which
+   rw_cells_free/1 takes on a dirty scheduler) */
 struct cells {
     ErlNifMutex *lock;
     struct cell **table;
     size_t size, count;
+    struct write *dead;
 };
 
 static ErlNifResourceType *cells_type;
@@ -141,13 +148,19 @@ static void arena_free(struct arena *a) {
     }
 }
 static ERL_NIF_TERM atom_ok;
+/* The answer to a call whose arguments failed to parse (0) or that ran
+   out of memory (-1). */
+static ERL_NIF_TERM failed(ErlNifEnv *env, int why) {
+    return why < 0 ? enif_raise_exception(env, enif_make_atom(env, "enomem")) : enif_make_badarg(env);
+}
 
-/* A cell's key, as parsed from {X, Y, Z}. */
+/* A cell's key, as parsed from {X, Y, Z} (big: the term's bytes, in the
+   call's arena, for coordinates past 64 bits). */
 struct key {
     uint64_t hash;
     ErlNifSInt64 x, y, z;
-    ErlNifBinary big;
-    int is_big;
+    const unsigned char *big;
+    size_t big_len;
 };
 
 static uint64_t mix(uint64_t h) {
@@ -159,35 +172,41 @@ static uint64_t mix(uint64_t h) {
     return h;
 }
 
-static int get_key(ErlNifEnv *env, ERL_NIF_TERM cell, struct key *k) {
+/* 1: parsed; 0: not a cell's key (badarg); -1: out of memory. */
+static int get_key(ErlNifEnv *env, struct arena *ar, ERL_NIF_TERM cell, struct key *k) {
     int arity;
     const ERL_NIF_TERM *xyz;
     if (!enif_get_tuple(env, cell, &arity, &xyz) || arity != 3) return 0;
-    k->is_big = 0;
+    k->big = NULL;
+    k->big_len = 0;
     if (enif_get_int64(env, xyz[0], &k->x) && enif_get_int64(env, xyz[1], &k->y) &&
         enif_get_int64(env, xyz[2], &k->z)) {
         k->hash = mix((uint64_t)k->x * 0x9e3779b97f4a7c15ULL ^ mix((uint64_t)k->y + mix((uint64_t)k->z)));
         return 1;
     }
     /* far out: integers of any size */
-    if (!enif_is_number(env, xyz[0]) || !enif_is_number(env, xyz[1]) || !enif_is_number(env, xyz[2]) ||
-        !enif_term_to_binary(env, cell, &k->big))
-        return 0;
-    k->is_big = 1;
+    if (!enif_is_number(env, xyz[0]) || !enif_is_number(env, xyz[1]) || !enif_is_number(env, xyz[2])) return 0;
+    ErlNifBinary bin;
+    if (!enif_term_to_binary(env, cell, &bin)) return -1;
+    unsigned char *big = arena_alloc(ar, bin.size);
+    if (!big) {
+        enif_release_binary(&bin);
+        return -1;
+    }
+    memcpy(big, bin.data, bin.size);
+    k->big = big;
+    k->big_len = bin.size;
+    enif_release_binary(&bin);
     uint64_t h = 1469598103934665603ULL;
-    for (size_t i = 0; i < k->big.size; i++) h = (h ^ k->big.data[i]) * 1099511628211ULL;
+    for (size_t i = 0; i < k->big_len; i++) h = (h ^ k->big[i]) * 1099511628211ULL;
     k->hash = mix(h);
     k->x = k->y = k->z = 0;
     return 1;
 }
 
-static void drop_key(struct key *k) {
-    if (k->is_big) enif_release_binary(&k->big);
-}
-
 static int same_key(const struct cell *c, const struct key *k) {
     if (c->hash != k->hash) return 0;
-    if (k->is_big) return c->big && c->big_len == k->big.size && memcmp(c->big, k->big.data, c->big_len) == 0;
+    if (k->big) return c->big && c->big_len == k->big_len && memcmp(c->big, k->big, c->big_len) == 0;
     return !c->big && c->x == k->x && c->y == k->y && c->z == k->z;
 }
 
@@ -222,14 +241,14 @@ static struct cell *add_cell(struct cells *cs, const struct key *k) {
     c->x = k->x;
     c->y = k->y;
     c->z = k->z;
-    if (k->is_big) {
-        c->big = enif_alloc(k->big.size);
+    if (k->big) {
+        c->big = enif_alloc(k->big_len);
         if (!c->big) {
             enif_free(c);
             return NULL;
         }
-        memcpy(c->big, k->big.data, k->big.size);
-        c->big_len = k->big.size;
+        memcpy(c->big, k->big, k->big_len);
+        c->big_len = k->big_len;
     }
     c->next = cs->table[k->hash & (cs->size - 1)];
     cs->table[k->hash & (cs->size - 1)] = c;
@@ -237,20 +256,39 @@ static struct cell *add_cell(struct cells *cs, const struct key *k) {
     return c;
 }
 
-static void release_write(struct write *w) {
+/* A write of this many members or more is freed on a dirty scheduler (a
+   write of 500 took up to 4 ms); a smaller one at once (a switch to a
+   dirty scheduler and back costs more than freeing it). */
+#define LARGE_WRITE 64
+
+static void release_write(struct cells *cs, struct write *w) {
     if (--w->refs > 0) return;
-    enif_free_env(w->env);
-    enif_free(w);
+    if (w->n >= LARGE_WRITE) {
+        w->next_dead = cs->dead;
+        cs->dead = w;
+    } else {
+        enif_free_env(w->env);
+        enif_free(w);
+    }
 }
 
-static void free_seg(struct seg *s) {
-    release_write(s->w);
+static void free_dead(struct cells *cs) {
+    for (struct write *w = cs->dead, *next; w; w = next) {
+        next = w->next_dead;
+        enif_free_env(w->env);
+        enif_free(w);
+    }
+    cs->dead = NULL;
+}
+
+static void free_seg(struct cells *cs, struct seg *s) {
+    release_write(cs, s->w);
     if (s->ms) enif_free(s->ms);
 }
 
-static void free_cell(struct cell *c) {
+static void free_cell(struct cells *cs, struct cell *c) {
     for (size_t i = 0; i < c->n; i++) {
-        for (size_t j = 0; j < c->writers[i].n; j++) free_seg(&c->writers[i].segs[j]);
+        for (size_t j = 0; j < c->writers[i].n; j++) free_seg(cs, &c->writers[i].segs[j]);
         if (c->writers[i].segs) enif_free(c->writers[i].segs);
     }
     if (c->writers) enif_free(c->writers);
@@ -264,7 +302,7 @@ static void drop_cell(struct cells *cs, struct cell *c) {
         if (*p == c) {
             *p = c->next;
             cs->count--;
-            free_cell(c);
+            free_cell(cs, c);
             return;
         }
     }
@@ -278,7 +316,7 @@ static void drop_empty(struct cells *cs) {
             if (c->n == 0) {
                 *p = c->next;
                 cs->count--;
-                free_cell(c);
+                free_cell(cs, c);
             } else {
                 p = &c->next;
             }
@@ -289,13 +327,14 @@ static void drop_empty(struct cells *cs) {
 static void cells_dtor(ErlNifEnv *env, void *obj) {
     (void)env;
     struct cells *cs = obj;
-    for (size_t i = 0; i < cs->size; i++) {
+    for (size_t i = 0; cs->table && i < cs->size; i++) {
         for (struct cell *c = cs->table[i], *next; c; c = next) {
             next = c->next;
-            free_cell(c);
+            free_cell(cs, c);
         }
     }
-    enif_free(cs->table);
+    free_dead(cs);
+    if (cs->table) enif_free(cs->table);
     if (cs->lock) enif_mutex_destroy(cs->lock);
 }
 
@@ -314,13 +353,15 @@ ERL_NIF_TERM rw_cells_new(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[]) {
     (void)argc;
     (void)argv;
     struct cells *cs = enif_alloc_resource(cells_type, sizeof *cs);
+    if (!cs) return failed(env, -1);
     memset(cs, 0, sizeof *cs);
-    cs->size = 64;
-    cs->table = zalloc(cs->size * sizeof *cs->table);
+    cs->table = zalloc(64 * sizeof *cs->table);
+    /* (the size only with the table: the destructor walks size slots) */
+    if (cs->table) cs->size = 64;
     cs->lock = enif_mutex_create("rw_cells");
     if (!cs->table || !cs->lock) {
         enif_release_resource(cs);
-        return enif_raise_exception(env, enif_make_atom(env, "enomem"));
+        return failed(env, -1);
     }
     ERL_NIF_TERM t = enif_make_resource(env, cs);
     enif_release_resource(cs);
@@ -358,7 +399,7 @@ static void get_scan(ErlNifEnv *env, ERL_NIF_TERM payload, struct payload *p) {
     const ERL_NIF_TERM *e, *sphere, *sts, *scale;
     p->scan = 0;
     if (!enif_get_tuple(env, payload, &arity, &e) || arity != 6 || !enif_get_tuple(env, e[2], &arity, &sphere) ||
-        arity != 7 || !enif_get_double(env, sphere[3], &p->radius) || !enif_get_int64(env, e[3], &p->t0) ||
+        arity != SPHERE_SIZE || !enif_get_double(env, sphere[SPHERE_RADIUS], &p->radius) || !enif_get_int64(env, e[3], &p->t0) ||
         !enif_get_tuple(env, e[4], &arity, &sts) || arity != 6 || !enif_get_int64(env, sts[0], &p->size) ||
         !enif_inspect_binary(env, sts[3], &p->bin) || !enif_get_tuple(env, sts[4], &arity, &scale) || arity != 1 ||
         !enif_get_double(env, scale[0], &p->scale))
@@ -370,7 +411,7 @@ static void get_scan(ErlNifEnv *env, ERL_NIF_TERM payload, struct payload *p) {
 
 /* A write {Writer, T0, #{Idx => Payload}, Bounds}: its members' idx and
    boxes (payload {Idx, Writer, Sphere, T0, States, Bounds}), ascending by
-   idx. */
+   idx. 1, 0 for badarg, -1 out of memory. */
 static int cmp_payload(const void *a, const void *b) {
     long x = ((const struct payload *)a)->idx, y = ((const struct payload *)b)->idx;
     return (x > y) - (x < y);
@@ -386,7 +427,7 @@ static int get_write(ErlNifEnv *env, struct arena *ar, ERL_NIF_TERM t, ERL_NIF_T
         return 0;
     *owner = e[0];
     struct payload *ps = arena_alloc(ar, (size ? size : 1) * sizeof *ps);
-    if (!ps) return 0;
+    if (!ps) return -1;
     ErlNifMapIterator it;
     if (!enif_map_iterator_create(env, e[2], &it, ERL_NIF_MAP_ITERATOR_FIRST)) return 0;
     size_t i = 0;
@@ -420,46 +461,45 @@ static const struct payload *find_payload(const struct payload *ps, size_t n, lo
     return lo < n && ps[lo].idx == idx ? &ps[lo] : NULL;
 }
 
-/* A span {Cell, Ta, Tb, [{Idx, A, B}]}. */
-struct span { ERL_NIF_TERM cell; ErlNifSInt64 ta, tb; size_t n; struct mspan *ms; };
+/* A span {Cell, Ta, Tb, [{Idx, A, B}]}, its cell's key parsed. */
+struct span { struct key key; ErlNifSInt64 ta, tb; size_t n; struct mspan *ms; };
 
+/* Every span parsed (and its key) before a call changes anything: 1, 0
+   for badarg, -1 out of memory. */
 static int get_spans(ErlNifEnv *env, struct arena *ar, ERL_NIF_TERM list, struct span **out, size_t *n_out) {
     unsigned len;
     if (!enif_get_list_length(env, list, &len)) return 0;
     struct span *sp = arena_alloc(ar, (len ? len : 1) * sizeof *sp);
-    if (!sp) return 0;
+    if (!sp) return -1;
     ERL_NIF_TERM head;
     size_t i = 0;
-    int ok = 1;
-    while (ok && enif_get_list_cell(env, list, &head, &list)) {
-        int arity;
+    while (enif_get_list_cell(env, list, &head, &list)) {
+        int arity, parsed;
         const ERL_NIF_TERM *e;
         unsigned mlen;
-        ok = enif_get_tuple(env, head, &arity, &e) && arity == 4 && enif_get_int64(env, e[1], &sp[i].ta) &&
-             enif_get_int64(env, e[2], &sp[i].tb) && enif_get_list_length(env, e[3], &mlen);
-        if (!ok) break;
-        sp[i].cell = e[0];
+        if (!enif_get_tuple(env, head, &arity, &e) || arity != 4 || !enif_get_int64(env, e[1], &sp[i].ta) ||
+            !enif_get_int64(env, e[2], &sp[i].tb) || !enif_get_list_length(env, e[3], &mlen))
+            return 0;
+        if ((parsed = get_key(env, ar, e[0], &sp[i].key)) <= 0) return parsed;
         sp[i].ms = arena_alloc(ar, (mlen ? mlen : 1) * sizeof *sp[i].ms);
-        if (!sp[i].ms) {
-            ok = 0;
-            break;
-        }
+        if (!sp[i].ms) return -1;
         ERL_NIF_TERM ml = e[3], mh;
         size_t j = 0;
-        while (ok && enif_get_list_cell(env, ml, &mh, &ml)) {
+        while (enif_get_list_cell(env, ml, &mh, &ml)) {
             const ERL_NIF_TERM *m;
-            ok = enif_get_tuple(env, mh, &arity, &m) && arity == 3 && enif_get_long(env, m[0], &sp[i].ms[j].idx) &&
-                 enif_get_int64(env, m[1], &sp[i].ms[j].a) && enif_get_int64(env, m[2], &sp[i].ms[j].b);
+            if (!enif_get_tuple(env, mh, &arity, &m) || arity != 3 || !enif_get_long(env, m[0], &sp[i].ms[j].idx) ||
+                !enif_get_int64(env, m[1], &sp[i].ms[j].a) || !enif_get_int64(env, m[2], &sp[i].ms[j].b))
+                return 0;
             j++;
         }
         sp[i].n = j;
         i++;
     }
-    if (!ok) return 0;
     *out = sp;
     *n_out = i;
     return 1;
 }
+
 
 /* The copies in ws of its newest segments' times, box and writer. */
 static void refresh(struct wsegs *ws) {
@@ -490,7 +530,7 @@ static void remove_writer(struct cell *c, struct wsegs *ws) {
 
 /* rw_cells:store/7's segments, as Owner's: each span from Ta =< UpTo on,
    cut at UpTo, in front of the owner's segments in its cell. */
-ERL_NIF_TERM rw_cells_store(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[]) {
+static ERL_NIF_TERM cells_store(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[]) {
     struct cells *cs;
     ErlNifSInt64 upto, t0, box[6];
     ERL_NIF_TERM owner = argv[1], writer;
@@ -502,13 +542,16 @@ ERL_NIF_TERM rw_cells_store(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
     (void)argc;
     /* the write's terms, copied once for all its segments here, and read
        from the copy (a small binary is copied with its term) */
+    if (!get_cells(env, argv[0], &cs) || !enif_get_int64(env, argv[4], &upto)) return enif_make_badarg(env);
     ErlNifEnv *wenv = enif_alloc_env();
+    if (!wenv) return failed(env, -1);
     ERL_NIF_TERM copy = enif_make_copy(wenv, argv[2]);
-    if (!get_cells(env, argv[0], &cs) || !enif_get_int64(env, argv[4], &upto) ||
-        !get_write(wenv, &ar, copy, &writer, &t0, box, &ps, &np) || !get_spans(env, &ar, argv[3], &spans, &nspans)) {
+    int parsed = get_write(wenv, &ar, copy, &writer, &t0, box, &ps, &np);
+    if (parsed > 0) parsed = get_spans(env, &ar, argv[3], &spans, &nspans);
+    if (parsed <= 0) {
         enif_free_env(wenv);
         arena_free(&ar);
-        return enif_make_badarg(env);
+        return failed(env, parsed);
     }
     struct write *w = enif_alloc(sizeof *w + np * sizeof *ps);
     if (!w) {
@@ -528,14 +571,8 @@ ERL_NIF_TERM rw_cells_store(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
     for (size_t i = 0; ok && i < nspans; i++) {
         struct span *sp = &spans[i];
         if (sp->ta > upto) continue;
-        struct key k;
-        if (!get_key(env, sp->cell, &k)) {
-            ok = 0;
-            break;
-        }
-        struct cell *c = find_cell(cs, &k);
-        if (!c) c = add_cell(cs, &k);
-        drop_key(&k);
+        struct cell *c = find_cell(cs, &sp->key);
+        if (!c) c = add_cell(cs, &sp->key);
         if (!c) {
             ok = 0;
             break;
@@ -590,8 +627,8 @@ ERL_NIF_TERM rw_cells_store(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
                     else j++;
         drop_empty(cs);
     }
+    release_write(cs, w);
     enif_mutex_unlock(cs->lock);
-    release_write(w);
     arena_free(&ar);
     return ok ? atom_ok : enif_raise_exception(env, enif_make_atom(env, "enomem"));
 }
@@ -675,31 +712,29 @@ ERL_NIF_TERM rw_cells_probe(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
     struct arena ar = {scratch, sizeof scratch, 0, NULL};
     (void)argc;
     ErlNifSInt64 dt;
-    if (!get_cells(env, argv[0], &cs) || !enif_get_int64(env, argv[3], &dt) ||
-        !get_write(env, &ar, argv[1], &me, &t0, box, &mine, &nmine) || !get_spans(env, &ar, argv[2], &spans, &nspans)) {
+    ErlNifTime start = rw_now();
+    if (!get_cells(env, argv[0], &cs) || !enif_get_int64(env, argv[3], &dt)) return enif_make_badarg(env);
+    int parsed = get_write(env, &ar, argv[1], &me, &t0, box, &mine, &nmine);
+    if (parsed > 0) parsed = get_spans(env, &ar, argv[2], &spans, &nspans);
+    if (parsed <= 0) {
         arena_free(&ar);
-        return enif_make_badarg(env);
+        return failed(env, parsed);
     }
     struct windows ws = {&ar, NULL, 0, 0, NULL, 0};
+    /* 1, else as failed/2 takes it */
     int ok = 1;
     ErlNifUInt64 my_hash = owner_hash(me);
     enif_mutex_lock(cs->lock);
-    for (size_t i = 0; ok && i < nspans; i++) {
+    for (size_t i = 0; ok > 0 && i < nspans; i++) {
         struct span *sp = &spans[i];
-        struct key k;
-        if (!get_key(env, sp->cell, &k)) {
-            ok = 0;
-            break;
-        }
-        struct cell *c = find_cell(cs, &k);
-        drop_key(&k);
+        struct cell *c = find_cell(cs, &sp->key);
         if (!c) continue;
-        for (size_t j = 0; ok && j < c->n; j++) {
+        for (size_t j = 0; ok > 0 && j < c->n; j++) {
             struct wsegs *wr = &c->writers[j];
             /* the newest segment from the copies, the older ones only
                when the one before ends in the window or later */
             if (wr->tb < sp->ta || is_writer(wr, me, my_hash)) continue;
-            for (size_t s = wr->n; ok && s-- > 0;) {
+            for (size_t s = wr->n; ok > 0 && s-- > 0;) {
                 struct seg *sg = &wr->segs[s];
                 if (s == wr->n - 1) {
                     if (wr->ta > sp->tb || disjoint(box, wr->box)) continue;
@@ -707,13 +742,13 @@ ERL_NIF_TERM rw_cells_probe(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
                     if ((s == wr->n - 2 ? wr->prev_tb : sg->tb) < sp->ta) break;
                     if (sg->ta > sp->tb || disjoint(box, sg->box)) continue;
                 }
-                for (size_t a = 0; ok && a < sp->n; a++) {
+                for (size_t a = 0; ok > 0 && a < sp->n; a++) {
                     const struct mspan *m = &sp->ms[a];
                     const struct mspan *oms = seg_ms(sg);
-                    for (size_t b = 0; ok && b < sg->n; b++) {
+                    for (size_t b = 0; ok > 0 && b < sg->n; b++) {
                         const struct mspan *om = &oms[b];
                         ErlNifSInt64 lo = om->a > m->a ? om->a : m->a, hi = om->b < m->b ? om->b : m->b;
-                        if (lo <= hi) ok = add_window(&ws, m->idx, om->idx, sg, lo, hi);
+                        if (lo <= hi && !add_window(&ws, m->idx, om->idx, sg, lo, hi)) ok = -1;
                     }
                 }
             }
@@ -724,7 +759,7 @@ ERL_NIF_TERM rw_cells_probe(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
        earliest go back, each as the window of its substep (the Erlang
        scan confirms it and makes the contact); the others go back whole. */
     ErlNifSInt64 first = INT64_MAX;
-    for (size_t i = 0; ok && i < ws.n; i++) {
+    for (size_t i = 0; ok > 0 && i < ws.n; i++) {
         struct window *x = &ws.w[i];
         const struct payload *p = find_payload(mine, nmine, x->me), *other = find_payload(x->w->members, x->w->n, x->o);
         if (!p || !other) {
@@ -737,7 +772,10 @@ ERL_NIF_TERM rw_cells_probe(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
             x->touch = -2;
             continue;
         }
-        if (dt <= 0 || !p->scan || !other->scan || x->lo < p->t0 || x->lo < other->t0) continue;
+        /* (times from 0: no difference of them overflows) */
+        if (dt <= 0 || !p->scan || !other->scan || p->t0 < 0 || other->t0 < 0 || x->lo < p->t0 ||
+            x->lo < other->t0)
+            continue;
         double sum = p->radius + other->radius, margin = 0.0, reach = 0.0;
         int has_reach = p->has_reach && other->has_reach;
         if (has_reach) {
@@ -762,7 +800,7 @@ ERL_NIF_TERM rw_cells_probe(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
         }
     }
     ERL_NIF_TERM result = enif_make_list(env, 0);
-    for (size_t i = ws.n; ok && i-- > 0;) {
+    for (size_t i = ws.n; ok > 0 && i-- > 0;) {
         struct window *x = &ws.w[i];
         if (x->touch < 0 || x->lo > first) continue;
         ERL_NIF_TERM t = enif_make_tuple5(env, enif_make_long(env, x->me), enif_make_long(env, x->o),
@@ -772,14 +810,12 @@ ERL_NIF_TERM rw_cells_probe(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[])
     }
     enif_mutex_unlock(cs->lock);
     arena_free(&ar);
-    /* (a large group's write meets thousands of pairs: the scheduler is
-       told of the time taken, some 1 % per 16 pairs) */
-    if (ws.n >= 16) enif_consume_timeslice(env, ws.n >= 1600 ? 100 : (int)(ws.n / 16));
-    return ok ? result : enif_make_badarg(env);
+    rw_spend(env, start);
+    return ok > 0 ? result : failed(env, ok);
 }
 
 /* rw_cells:delete/5's truncation: Owner's segments in Cells end at R. */
-ERL_NIF_TERM rw_cells_delete(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[]) {
+static ERL_NIF_TERM cells_delete(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[]) {
     struct cells *cs;
     ErlNifSInt64 r;
     (void)argc;
@@ -787,20 +823,27 @@ ERL_NIF_TERM rw_cells_delete(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[]
         return enif_make_badarg(env);
     ERL_NIF_TERM owner = argv[1], list = argv[3], head;
     ErlNifUInt64 hash = owner_hash(owner);
-    int ok = 1;
+    unsigned char scratch[SCRATCH];
+    struct arena ar = {scratch, sizeof scratch, 0, NULL};
+    unsigned len;
+    struct key *keys;
+    int parsed = 1;
+    if (!enif_get_list_length(env, list, &len)) return enif_make_badarg(env);
+    /* every key parsed before anything changes */
+    if (!(keys = arena_alloc(&ar, (len ? len : 1) * sizeof *keys))) parsed = -1;
+    for (unsigned i = 0; parsed > 0 && i < len; i++)
+        parsed = enif_get_list_cell(env, list, &head, &list) ? get_key(env, &ar, head, &keys[i]) : 0;
+    if (parsed <= 0) {
+        arena_free(&ar);
+        return failed(env, parsed);
+    }
     enif_mutex_lock(cs->lock);
-    while (ok && enif_get_list_cell(env, list, &head, &list)) {
-        struct key k;
-        if (!get_key(env, head, &k)) {
-            ok = 0;
-            break;
-        }
-        struct cell *c = find_cell(cs, &k);
-        drop_key(&k);
+    for (unsigned i = 0; i < len; i++) {
+        struct cell *c = find_cell(cs, &keys[i]);
         if (!c) continue;
         struct wsegs *ws = find_writer(c, owner, hash);
         if (!ws) continue;
-        while (ws->n > 0 && ws->segs[ws->n - 1].ta > r) free_seg(&ws->segs[--ws->n]);
+        while (ws->n > 0 && ws->segs[ws->n - 1].ta > r) free_seg(cs, &ws->segs[--ws->n]);
         if (ws->n > 0 && ws->segs[ws->n - 1].tb > r) {
             struct seg *s = &ws->segs[ws->n - 1];
             s->tb = r;
@@ -822,26 +865,73 @@ ERL_NIF_TERM rw_cells_delete(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[]
         }
     }
     enif_mutex_unlock(cs->lock);
-    return ok ? atom_ok : enif_make_badarg(env);
+    arena_free(&ar);
+    return atom_ok;
 }
 
-/* rw_cells:gc/2's sweep: each writer keeps its newest segments that end
-   at Gvt or later. */
+/* A store's and a delete's time, told to the scheduler (a large group's
+   write spans many cells). */
+ERL_NIF_TERM rw_cells_store(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[]) {
+    ErlNifTime start = rw_now();
+    ERL_NIF_TERM result = cells_store(env, argc, argv);
+    rw_spend(env, start);
+    return result;
+}
+
+ERL_NIF_TERM rw_cells_delete(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[]) {
+    ErlNifTime start = rw_now();
+    ERL_NIF_TERM result = cells_delete(env, argc, argv);
+    rw_spend(env, start);
+    return result;
+}
+
+/* rw_cells:gc/2's sweep from where the call before stopped (0: from the
+   start): each writer keeps its newest segments that end at Gvt or later,
+   and a cell left without writers goes. It stops once half a time slice
+   is up (a cell of a tall stack holds hundreds of writers and tens of
+   thousands of segments): {Slot, Depth, Writer}, the writer to go on from
+   (Depth: the cells kept before it in its slot's chain); at the end ok,
+   or free where writes wait to be freed (rw_cells_free/1). The caller
+   calls again at once, before anything else changes the cells. */
+#define GC_BUDGET_US (RW_SLICE_US / 2)
 ERL_NIF_TERM rw_cells_gc(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[]) {
     struct cells *cs;
     ErlNifSInt64 gvt;
+    ErlNifUInt64 slot = 0, depth = 0, writer = 0;
+    ErlNifTime start = rw_now();
+    const ERL_NIF_TERM *from;
+    int arity;
     (void)argc;
     if (!get_cells(env, argv[0], &cs) || !enif_get_int64(env, argv[1], &gvt)) return enif_make_badarg(env);
+    if (!enif_is_identical(argv[2], enif_make_int(env, 0)) &&
+        !(enif_get_tuple(env, argv[2], &arity, &from) && arity == 3 && enif_get_uint64(env, from[0], &slot) &&
+          enif_get_uint64(env, from[1], &depth) && enif_get_uint64(env, from[2], &writer)))
+        return enif_make_badarg(env);
     enif_mutex_lock(cs->lock);
-    for (size_t i = 0; i < cs->size; i++) {
-        for (struct cell *c = cs->table[i]; c; c = c->next) {
-            for (size_t j = 0; j < c->n;) {
+    ERL_NIF_TERM result = atom_ok;
+    size_t swept = 0;
+    for (size_t i = slot; i < cs->size; i++, depth = 0, writer = 0) {
+        size_t d = 0;
+        for (struct cell **p = &cs->table[i]; *p;) {
+            struct cell *c = *p;
+            if (d < depth) {
+                p = &c->next;
+                d++;
+                continue;
+            }
+            for (size_t j = d == depth ? writer : 0; j < c->n;) {
+                if (swept > 0 && swept % 8 == 0 && rw_now() - start >= GC_BUDGET_US) {
+                    result = enif_make_tuple3(env, enif_make_uint64(env, i), enif_make_uint64(env, d),
+                                              enif_make_uint64(env, j));
+                    goto out;
+                }
+                swept++;
                 struct wsegs *ws = &c->writers[j];
                 size_t keep = ws->n;
                 while (keep > 0 && ws->segs[keep - 1].tb >= gvt) keep--;
                 /* segments [keep, n) are kept */
                 if (keep > 0) {
-                    for (size_t s = 0; s < keep; s++) free_seg(&ws->segs[s]);
+                    for (size_t s = 0; s < keep; s++) free_seg(cs, &ws->segs[s]);
                     memmove(ws->segs, ws->segs + keep, (ws->n - keep) * sizeof *ws->segs);
                     ws->n -= keep;
                     if (ws->n > 0) refresh(ws);
@@ -849,9 +939,32 @@ ERL_NIF_TERM rw_cells_gc(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[]) {
                 if (ws->n == 0) remove_writer(c, ws);
                 else j++;
             }
+            if (c->n == 0) {
+                *p = c->next;
+                cs->count--;
+                free_cell(cs, c);
+            } else {
+                p = &c->next;
+                d++;
+            }
         }
     }
-    drop_empty(cs);
+    if (cs->dead) result = enif_make_atom(env, "free");
+out:
+    enif_mutex_unlock(cs->lock);
+    rw_spend(env, start);
+    return result;
+}
+
+/* The environments of the writes no segment refers to any more, freed (a
+   dirty CPU job: a large group's write holds a map of hundreds of
+   payloads, some milliseconds to free). */
+ERL_NIF_TERM rw_cells_free(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[]) {
+    struct cells *cs;
+    (void)argc;
+    if (!get_cells(env, argv[0], &cs)) return enif_make_badarg(env);
+    enif_mutex_lock(cs->lock);
+    free_dead(cs);
     enif_mutex_unlock(cs->lock);
     return atom_ok;
 }

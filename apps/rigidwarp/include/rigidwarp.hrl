@@ -66,6 +66,8 @@
     group_max = 1 :: pos_integer(),
     grouping = persistent :: persistent | eager,
     delay = none :: none | {Seed :: integer(), MaxMs :: non_neg_integer()},  % test hook (rw_body)
+    %% the engine's C loops, where their library is loaded (rw_native:use/1)
+    native = true :: boolean(),
     trace :: ets:tid() | undefined            % tasks recorded for rw_parallelism (rw_trace)
 }).
 

@@ -52,6 +52,8 @@
                          %% the memory (MiB) the speculative history may take (timewarp):
                          %% the stride is shortened to fit
                          speculation_mb => pos_integer(),
+                         %% the C loops (timewarp), where their library loads
+                         native => boolean(),
                          %% recovery (timewarp): restarts from the latest checkpoint
                          %% after a fault, at most max_restarts in restart_period_ms
                          max_restarts => non_neg_integer(), restart_period_ms => pos_integer(),
@@ -76,7 +78,7 @@
 
 %% The options the Time Warp engine itself takes.
 -define(TIMEWARP_KEYS, [buckets, schedulers, nodes, migrate, watchdog_ms, groups, group_max, speculation_mb, max_restarts,
-                        restart_period_ms, checkpoint_ms, ring_size]).
+                        restart_period_ms, checkpoint_ms, ring_size, native]).
 %% What run/2 takes and start/2 cannot: start/2 hands out frames through
 %% the handle (frames/1, subscribe/1), not to a file or a callback.
 -define(RUN_ONLY_KEYS, [frames, resume, on_frame, on_progress]).
@@ -100,11 +102,13 @@ options() ->
      {migrate, boolean, "over several nodes, place the bodies anew at a checkpoint that finds a tenth of them in "
       "other nodes' space (default true)"},
      {groups, boolean, "step bodies in persistent contact as one entity (default true)"},
-     {group_max, count, "the most bodies in one contact group (default 1024)"},
+     {group_max, {count, rw_regroup:max_allowed()}, "the most bodies in one contact group (default 1024)"},
      {speculation_mb, count, "the memory (MiB) the bodies' history past GVT may take: where the stride would need "
       "more, bodies step ahead of GVT by a shorter one (effective_stride_ms in stats), and while the run holds "
       "more they step less far (memory_holds); either makes throttled true (default "
       ++ integer_to_list(rw_speculation:default_mb()) ++ ")"},
+     {native, boolean, "the engine's C loops where their library loads; false runs its Erlang code alone, "
+      "with the same frames (default: the application's native, true)"},
      {watchdog_ms, count, "how long GVT may stand still before the run restarts (default 10000)"},
      {max_restarts, non_neg, "restarts after faults allowed within restart_period_ms (default 5)"},
      {restart_period_ms, count, "the period of the restart budget (default 10000)"},
@@ -115,10 +119,10 @@ options() ->
      {on_frame, callback, "run/2: fun(Frame) -> _, for every frame in order"},
      {on_progress, callback, "run/2: fun(Stats) -> _, once per frame"}].
 
--type kind() :: ms | count | non_neg | boolean | path | callback | nodes | {one_of, [atom()]}.
+-type kind() :: ms | count | {count, pos_integer()} | non_neg | boolean | path | callback | nodes | {one_of, [atom()]}.
 %% The values an option takes: ms is a number above 0, count an integer
-%% above 0, non_neg an integer from 0, path a file name, callback a fun of
-%% one argument.
+%% above 0 ({count, Max}: at most Max), non_neg an integer from 0, path a
+%% file name, callback a fun of one argument.
 
 %% @doc Print the API and every option with its values and default.
 -spec help() -> ok.
@@ -142,6 +146,7 @@ help() ->
 
 kind_text(ms) -> "ms > 0";
 kind_text(count) -> "integer > 0";
+kind_text({count, Max}) -> "integer 1.." ++ integer_to_list(Max);
 kind_text(non_neg) -> "integer >= 0";
 kind_text(boolean) -> "true | false";
 kind_text(path) -> "file name";
@@ -486,7 +491,8 @@ summary(#scene{name = Name, substep = Dt, stride = Stride, spheres = Spheres} = 
     Resumed = case From of fresh -> #{}; _ -> #{resumed_from_ms => StartMs} end,
     %% the run's progress figures (status, GVT, start and end, the lead)
     %% say nothing once it has ended
-    maps:merge(maps:without([status, gvt, start_ms, end_ms, max_lvt], Stats),
+    %% (the reference engine is Erlang alone)
+    maps:merge(maps:without([status, gvt, start_ms, end_ms, max_lvt], maps:merge(#{native => false}, Stats)),
                Resumed#{scene => Name, engine => Engine, bodies => length(Spheres),
                         substep_ms => rw_scene:ms(Scene, Dt), stride_ms => rw_scene:ms(Scene, Stride),
                         sim_ms => SimMs, wall_ms => round(WallMs), realtime_factor => SimMs / max(WallMs, 0.001)}).
@@ -520,6 +526,7 @@ check_values([{K, V, Kind} | Rest]) ->
 
 valid(ms, V) -> is_number(V) andalso V > 0;
 valid(count, V) -> is_integer(V) andalso V > 0 andalso V =< 1 bsl 20;
+valid({count, Max}, V) -> is_integer(V) andalso V > 0 andalso V =< Max;
 valid(non_neg, V) -> is_integer(V) andalso V >= 0 andalso V =< 1 bsl 30;
 valid(boolean, V) -> is_boolean(V);
 valid(path, V) -> is_list(V) orelse is_binary(V);

@@ -69,6 +69,7 @@ callback_mode() -> [state_functions, state_enter].
 init({#sim{scene = Scene, sync = Cal, owners = Owners, delay = Delay} = Sim, #sphere{idx = Idx} = Sphere, St0}) ->
     ets:insert(Owners, {Idx, self()}),
     ok = rw_trace:init(Sim#sim.trace),
+    ok = rw_native:use(Sim#sim.native),
     MaxMs = case Delay of
                 {Seed, Ms} -> _ = rand:seed(exsss, Seed + Idx), Ms;
                 none -> 0

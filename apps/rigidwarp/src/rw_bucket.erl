@@ -145,6 +145,8 @@ gvt(Buckets, Gvt, Told, Dt) ->
           {ok, #state{}}.
 init({Model, Dt, Store, Profile, Trace}) ->
     ok = rw_trace:init(Trace),
+    %% (its Erlang store scans in Erlang too: one setting per run)
+    ok = rw_native:use(Store =:= native),
     {ok, #state{cells = rw_cells:new(Model, Dt, Store), profile = Profile}}.
 
 -spec handle_call(term(), gen_server:from(), #state{}) -> {reply, term(), #state{}}.

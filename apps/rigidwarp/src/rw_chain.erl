@@ -103,8 +103,8 @@ substep(T, St, {M, _, Base, TL, _}, Island0) ->
 
 %% A body on its own without CCD, the hot path of free flight: while it
 %% touches nothing it keeps its velocities, and a substep is a few float
-%% operations (those of rw_integrate:advance/5 with a zero pseudo-velocity,
-%% in the same order) and the state appended to the binary. So is a
+%% operations (rw_integrate:move/10 with a zero pseudo-velocity) and the
+%% state appended to the binary. So is a
 %% substep near a fixture that the body does not touch (the island's own
 %% test, rw_island:touches_no_fixture/4). Other substeps (a fixture
 %% touched, a known contact, the group's start) go through the island as
@@ -178,27 +178,13 @@ native() ->
     end.
 
 %% One substep of flight/26, in Erlang.
-flight_one(T, X, Y, Z, VX, VY, VZ, Q, W, Last, {#model{dt = Dt, gravity = G, integrator = Int}, DtT, _, _, Cal} = Ctx,
+flight_one(T, X, Y, Z, VX, VY, VZ, Q, W, Last, {#model{dt = Dt} = M, DtT, _, _, Cal} = Ctx,
        Zone, Island, Sync, Busy, Passed0, Bin, First, X0, Y0, Z0, X1, Y1, Z1, Reach, Native)
   when is_float(X), is_float(Y), is_float(Z), is_float(VX), is_float(VY), is_float(VZ), is_float(Dt) ->
     {Post, NX, NY, NZ, NVX, NVY, NVZ, NQ, NW, Zone1, Island1} =
         case is_free(T, X, Y, Z, Zone, Busy, Island) of
             true ->
-                {AX, AY, AZ, AVX, AVY, AVZ} =
-                    case G of
-                        undefined ->
-                            {X + VX * Dt, Y + VY * Dt, Z + VZ * Dt, VX, VY, VZ};
-                        {GX, GY, GZ} when is_float(GX), is_float(GY), is_float(GZ) ->
-                            VXg = VX + GX * Dt, VYg = VY + GY * Dt, VZg = VZ + GZ * Dt,
-                            case Int of
-                                symplectic_euler -> {X + VXg * Dt, Y + VYg * Dt, Z + VZg * Dt, VXg, VYg, VZg};
-                                explicit_euler -> {X + VX * Dt, Y + VY * Dt, Z + VZ * Dt, VXg, VYg, VZg};
-                                verlet ->
-                                    H = 0.5 * Dt * Dt,
-                                    {(X + VX * Dt) + GX * H, (Y + VY * Dt) + GY * H, (Z + VZ * Dt) + GZ * H,
-                                     VXg, VYg, VZg}
-                            end
-                    end,
+                {AX, AY, AZ, AVX, AVY, AVZ} = rw_integrate:move(M, X, Y, Z, VX, VY, VZ, 0.0, 0.0, 0.0),
                 AQ = case W of
                          undefined -> Q;
                          _ -> rw_quat:integrate(Q, W, Dt)

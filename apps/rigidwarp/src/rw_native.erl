@@ -1,7 +1,8 @@
-%% The engine's hot loops in C (c_src/rw_native.c, built into
-%% priv/rw_native.so): a body's free flight and a contact group's island,
-%% the substeps of rw_chain; the scan of two bodies' packed positions for
-%% their first touch and the measure of a group's states, in rw_states.
+%% The engine's hot loops in C (c_src/, one file per concern, built into
+%% priv/rw_native.so; its function table in c_src/rw_native.c): a body's
+%% free flight and a contact group's island, the substeps of rw_chain; the
+%% scan of two bodies' packed positions for their first touch and the
+%% measure of a group's states, in rw_states; a bucket's cells, rw_cells.
 %% Each does the Erlang code's float operations in the same order, so the
 %% results are bit for bit the same; where the Erlang code would raise or
 %% fail on its arguments, the C code answers fallback (or stops short) and
@@ -9,11 +10,24 @@
 %% cannot be loaded (the escript copied away from its build) enabled/0 says
 %% so, the callers run the Erlang code alone, slower and with the same
 %% results.
+%%
+%% The switch is per process: a run tells each of its processes (bodies,
+%% buckets) whether to use the C loops (its option native, by default the
+%% application's environment native), so that runs with either setting may
+%% go on side by side in one VM, and a node without the library runs the
+%% Erlang code whatever the run asks for.
 -module(rw_native).
+-include_lib("rw_physics/include/rw_physics.hrl").
 -export([free_run/13, first_touch/10, island_run/10, measure/2, huge_pages/0, huge_pages_for/1, loaded/0, enabled/0,
-         use/1, library/0, library_variable/0]).
+         use/1, default/0, in_use/2, library/0, library_variable/0]).
+-export([c_layouts/0, erlang_layouts/0, check_layouts/2]).
 -export([cells_new/0, cells_store/5, cells_probe/4, cells_delete/4, cells_gc/2, cells_dump/1]).
--export_type([cells/0]).
+-export_type([cells/0, layout/0]).
+
+%% A record as the C code reads it ({Name, TupleSize, [{Field,
+%% Position}]}) or as the Erlang code was compiled with it ({Name,
+%% TupleSize, Fields in order}).
+-type layout() :: {atom(), pos_integer(), [{atom(), pos_integer()}] | [atom()]}.
 
 %% A TVHT bucket's segments kept in C (c_src/rw_cells.c): rw_cells' map of
 %% cells, writers and segments outside the Erlang heap. Changed in place
@@ -29,15 +43,65 @@
 
 %% the library's file, or none
 -define(LIBRARY, {?MODULE, library}).
--define(ENABLED, {?MODULE, enabled}).
+%% (process dictionary) whether this process uses the C loops
+-define(IN_PROCESS, '$rw_native').
 
 %% The library from the application's priv directory (rw_priv: the
 %% escript's too) or, on a node a run has loaded the engine on (rw_nodes),
-%% from where the run has copied it.
+%% from where the run has copied it; unused (one warning) where it reads
+%% the records otherwise than this code was compiled with them.
 init() ->
-    Library = load_first(candidates()),
-    persistent_term:put(?LIBRARY, Library),
-    persistent_term:put(?ENABLED, Library =/= none).
+    Library = case load_first(candidates()) of
+                  none -> none;
+                  File ->
+                      case check_layouts(c_layouts(), erlang_layouts()) of
+                          ok -> File;
+                          {error, Why} ->
+                              logger:warning("rigidwarp: the C loops' library ~ts is not used, the Erlang code runs: ~ts",
+                                             [File, Why]),
+                              none
+                      end
+              end,
+    persistent_term:put(?LIBRARY, Library).
+
+%% Where the loaded library reads the records.
+-spec c_layouts() -> [layout()].
+c_layouts() -> nif_layouts().
+
+nif_layouts() -> erlang:nif_error(not_loaded).
+
+%% The records as this code was compiled with them.
+-spec erlang_layouts() -> [layout()].
+erlang_layouts() ->
+    [{model, record_info(size, model), record_info(fields, model)},
+     {sphere, record_info(size, sphere), record_info(fields, sphere)},
+     {st, record_info(size, st), record_info(fields, st)},
+     {fixture, record_info(size, fixture), record_info(fields, fixture)}].
+
+%% Does the C code (Assumed) read every record where Actual has it?
+-spec check_layouts([layout()], [layout()]) -> ok | {error, string()}.
+check_layouts(Assumed, Actual) ->
+    Wrong = [Why || {Record, Size, Fields} <- Assumed, Why <- [layout_error(Record, Size, Fields, Actual)],
+                    Why =/= ok],
+    case Wrong of
+        [] -> ok;
+        [Why | _] -> {error, Why}
+    end.
+
+layout_error(Record, Size, Fields, Actual) ->
+    case lists:keyfind(Record, 1, Actual) of
+        false ->
+            format("the C code reads a record #~s{} the Erlang code does not have", [Record]);
+        {_, Size, Names} when length(Names) =:= Size - 1 ->
+            case [{F, P} || {F, P} <- Fields, not (P >= 1 andalso P < Size andalso lists:nth(P, Names) =:= F)] of
+                [] -> ok;
+                [{F, P} | _] -> format("the C code reads #~s.~s at position ~b, the Erlang record has ~0p", [Record, F, P, Names])
+            end;
+        {_, ActualSize, _} ->
+            format("the C code reads #~s{} as a tuple of ~b elements, the Erlang record has ~b", [Record, Size, ActualSize])
+    end.
+
+format(Format, Args) -> lists:flatten(io_lib:format(Format, Args)).
 
 load_first([]) -> none;
 load_first([Dir | Rest]) ->
@@ -80,15 +144,44 @@ library() ->
 -spec loaded() -> boolean().
 loaded() -> persistent_term:get(?LIBRARY, none) =/= none.
 
-%% Are the C loops loaded and in use? (Callers ask once per loop they run,
+%% Does this process use the C loops? Where it was not told (use/1), it
+%% does where the library is loaded. (Callers ask once per loop they run,
 %% and call them only then.)
 -spec enabled() -> boolean().
-enabled() -> persistent_term:get(?ENABLED, false).
+enabled() ->
+    case get(?IN_PROCESS) of
+        undefined -> loaded();
+        Native -> Native
+    end.
 
-%% Use the C loops (true, the default once loaded) or the Erlang code
-%% alone (false): to compare the two, bit for bit, in one VM.
+%% This process uses the C loops (true: where the library is loaded) or
+%% the Erlang code alone (false). A run's processes are told its setting
+%% as they start; tests compare the two, bit for bit.
 -spec use(boolean()) -> ok.
-use(Native) -> persistent_term:put(?ENABLED, Native andalso loaded()).
+use(Native) when is_boolean(Native) ->
+    _ = put(?IN_PROCESS, Native andalso loaded()),
+    ok.
+
+%% Whether a run uses the C loops unless told otherwise: the application's
+%% environment native (true where it is not a boolean).
+-spec default() -> boolean().
+default() ->
+    case application:get_env(rigidwarp, native, true) of
+        Native when is_boolean(Native) -> Native;
+        Bad ->
+            logger:warning("rigidwarp: native must be true or false, got ~0p; the C loops are used", [Bad]),
+            true
+    end.
+
+%% Whether a run that asks for the C loops (Native) runs them on every one
+%% of Nodes: each runs them where its library is loaded.
+-spec in_use(boolean(), [node()]) -> boolean().
+in_use(Native, Nodes) ->
+    Native andalso lists:all(fun(Node) when Node =:= node() -> loaded();
+                                (Node) -> try erpc:call(Node, ?MODULE, loaded, [], 5000) =:= true
+                                          catch _:_ -> false
+                                          end
+                             end, Nodes).
 
 %% Ask Linux to back the VM's super carrier (+MMscs, as the escript, the
 %% benchmarks and `make shell` start the VM) with transparent huge pages,
@@ -210,9 +303,19 @@ cells_probe(Store, Write, Spans, Dt) ->
 cells_delete(Store, Owner, R, Cells) ->
     ?TIMED(nif_cells_delete(Store, Owner, R, Cells)).
 
-%% Each writer keeps the segments of its own that end at Gvt or later.
+%% Each writer keeps the segments of its own that end at Gvt or later. (A
+%% large store is swept in slices, each a call of at most about half a
+%% time slice, each going on where the one before stopped; the writes left
+%% without segments are freed on a dirty scheduler.)
 -spec cells_gc(cells(), non_neg_integer()) -> ok.
-cells_gc(Store, Gvt) -> ?TIMED(nif_cells_gc(Store, Gvt)).
+cells_gc(Store, Gvt) -> cells_gc(Store, Gvt, 0).
+
+cells_gc(Store, Gvt, From) ->
+    case ?TIMED(nif_cells_gc(Store, Gvt, From)) of
+        ok -> ok;
+        free -> ?TIMED(nif_cells_free(Store));
+        Next -> cells_gc(Store, Gvt, Next)
+    end.
 
 %% All segments, per cell and writer, newest first: {Cell, Owner, [{Ta,
 %% Tb, write's box, write's T0, member spans}]} (a box with a corner past
@@ -226,5 +329,6 @@ nif_cells_new() -> erlang:nif_error(not_loaded).
 nif_cells_store(_Store, _Owner, _Write, _Spans, _UpTo) -> erlang:nif_error(not_loaded).
 nif_cells_probe(_Store, _Write, _Spans, _Dt) -> erlang:nif_error(not_loaded).
 nif_cells_delete(_Store, _Owner, _R, _Cells) -> erlang:nif_error(not_loaded).
-nif_cells_gc(_Store, _Gvt) -> erlang:nif_error(not_loaded).
+nif_cells_gc(_Store, _Gvt, _From) -> erlang:nif_error(not_loaded).
+nif_cells_free(_Store) -> erlang:nif_error(not_loaded).
 nif_cells_dump(_Store) -> erlang:nif_error(not_loaded).

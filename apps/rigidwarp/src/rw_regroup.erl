@@ -28,7 +28,7 @@
 %% decide/4 is what the GVT process does at a regroup point: the groups
 %% from the committed states, and whom to tell what; it carries that out.
 -module(rw_regroup).
--export([new/3, new/4, by_site/2, quiet/2, wanted/2, reads_only_some/2, members/1, decide/4, plan/4, plan/5, moves/3]).
+-export([max_allowed/0, new/3, new/4, by_site/2, quiet/2, wanted/2, reads_only_some/2, members/1, decide/4, plan/4, plan/5, moves/3]).
 -export_type([body/0, leaders/0, move/0, pairs/0, groups/0]).
 
 %% A body's committed state at the regroup point: idx, radius, position,
@@ -46,8 +46,19 @@
 %% Pairs of bodies {A, B}, A less than B.
 -type pairs() :: #{{non_neg_integer(), non_neg_integer()} => true}.
 
+%% The most bodies a group may hold at all (the run option group_max and
+%% --group-max refuse more): the C island steps a group of 128 or more on
+%% a dirty scheduler, reading and building every member's terms at each
+%% call, some 8 substeps of 3 ms each at this size; larger groups have not
+%% been measured.
+-define(MAX_ALLOWED, 4096).
+
 -define(NEAR, 1.25).
 -define(EAGER, 3.0).
+
+%% The largest group_max a run takes.
+-spec max_allowed() -> pos_integer().
+max_allowed() -> ?MAX_ALLOWED.
 
 %% The groups of a simulation as planned last: every body alone at first.
 -record(groups, {

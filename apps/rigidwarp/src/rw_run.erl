@@ -57,7 +57,7 @@
 -define(FLOW_RECHECK_MS, 10).
 %% The options the simulation's tree takes.
 -define(SIM_KEYS, [groups, group_max, regroup_every, grouping, profile, delay, watchdog_ms, ring_size,
-                   checkpoint_ms, trace, read_frames, speculation_mb]).
+                   checkpoint_ms, trace, read_frames, speculation_mb, native]).
 
 -record(r, {
     scene :: #scene{},                        % from the run's first start time
@@ -99,7 +99,8 @@
     start = 0 :: non_neg_integer(),           % where this run began, in ticks (its committed work counts from there)
     started :: integer(),                     % monotonic ms
     ended = none :: none | integer(),
-    lead = none :: rw_sim:lead()              % the highest LVT, as last read
+    lead = none :: rw_sim:lead(),             % the highest LVT, as last read
+    native = false :: boolean()               % the C loops ran on every node of the tree (rw_native:in_use/2)
 }).
 
 %% Start a run of Scene under rw_sims_sup, on the nodes it asks for: the
@@ -251,6 +252,7 @@ incarnate(#r{scene = Scene0, checkpoint = Checkpoint, opts = Opts} = R) ->
     case rw_sim_sup:start_link(Scene, R#r.buckets, #{records => R#r.records, ring => R#r.ring}, R#r.stats, SimOpts) of
         {ok, Sup, Sim, Named} ->
             {ok, R#r{sup = Sup, sim = Sim, sites = [P || {P, {site, _}} <- Named], placed_on = Nodes,
+                     native = rw_native:in_use(Sim#sim.native, Nodes),
                      watched = maps:from_list([{erlang:monitor(process, P), {P, Who}} || {P, Who} <- Named])}};
         {error, _} = Error ->
             Error
@@ -555,7 +557,7 @@ stats_of(#r{scene = #scene{spheres = Spheres, substep = Dt, duration = End, stri
          gvt => GvtMs, start_ms => ms(Start, R), end_ms => ms(End, R), max_lvt => ms(max(Lead, G), R), wall_ms => Wall,
          realtime_factor => max(0, GvtMs - ms(Start, R)) / Wall,
          status => case R#r.status of {crashed, _, _} -> crashed; Status -> Status end,
-         restarts => R#r.restarted,
+         restarts => R#r.restarted, native => R#r.native,
          %% the scene's stride, and the one the engine runs with under the
          %% run's memory budget for speculation (rw_speculation); throttled
          %% also when the memory guard held bodies back

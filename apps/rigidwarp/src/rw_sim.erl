@@ -12,7 +12,7 @@
 -type tables() :: #{records := ets:tid(), ring := ets:tid(), counts := ets:tid(), owners := ets:tid(),
                     procs := ets:tid(), met := ets:tid()}.
 
--type options() :: #{groups => boolean(), group_max => pos_integer(),
+-type options() :: #{groups => boolean(), group_max => pos_integer(), native => boolean(),
                      %% (tests) regroup points this many strides apart, groups of
                      %% all bodies near each other however they move
                      regroup_every => pos_integer(), grouping => persistent | eager,
@@ -54,6 +54,7 @@ new(#scene{spheres = Spheres, duration = End, frame = Frame, stride = Asked, sta
          gvt_now = gvt_now(Stride), group_max = maps:get(group_max, Opts, ?DEFAULT_GROUP_MAX),
          grouping = maps:get(grouping, Opts, persistent), delay = maps:get(delay, Opts, none),
          trace = maps:get(trace, Opts, undefined),
+         native = maps:get(native, Opts, rw_native:default()),
          records_kept = Kept}.
 
 %% Records only where the engine reads them when nobody reads the frames,

@@ -6,7 +6,7 @@
 -module(rw_sim_parts).
 -behaviour(supervisor).
 -include("rigidwarp.hrl").
--export([worker/3, bucket_pool/6, body_pool/0, start_bodies/3, stop/1, init/1]).
+-export([worker/3, bucket_pool/7, body_pool/0, start_bodies/3, stop/1, init/1]).
 
 %% Start a body for each {Sphere, State}: [{Idx, Id, Pid}].
 -spec start_bodies(pid(), #sim{}, [{#sphere{}, #st{}}]) -> [{non_neg_integer(), binary(), pid()}].
@@ -33,14 +33,15 @@ stop(Sup) ->
 
 %% The child spec of a pool of N buckets for the cells of Bodies bodies,
 %% whose work is recorded into Trace (rw_trace) when the simulation is
-%% traced. As the pool starts, before the buckets' heaps (the largest) are
+%% traced, keeping their segments in C where Native and the library is
+%% loaded here. As the pool starts, before the buckets' heaps (the largest) are
 %% touched, a large simulation asks for huge pages
 %% (rw_native:huge_pages_for/1).
 -spec bucket_pool(#model{}, pos_integer(), pos_integer(), rw_stats:counters() | undefined, ets:tid() | undefined,
-                  non_neg_integer()) -> supervisor:child_spec().
-bucket_pool(M, Dt, N, Profile, Trace, Bodies) ->
+                  non_neg_integer(), boolean()) -> supervisor:child_spec().
+bucket_pool(M, Dt, N, Profile, Trace, Bodies, Native) ->
     #{id => buckets, type => supervisor, restart => permanent,
-      start => {supervisor, start_link, [?MODULE, {buckets, M, Dt, N, Profile, Trace, Bodies}]}}.
+      start => {supervisor, start_link, [?MODULE, {buckets, M, Dt, N, Profile, Trace, Bodies, Native}]}}.
 
 %% The pool decides once where its buckets keep their segments (rw_cells:
 %% in C where the library is loaded) and sizes their heaps for it. A
@@ -65,13 +66,13 @@ worker(Id, Mod, Args) ->
     #{id => Id, start => {Mod, start_link, Args}, restart => permanent, shutdown => 1000, type => worker}.
 
 -spec init(sim | {buckets, #model{}, pos_integer(), pos_integer(), rw_stats:counters() | undefined,
-                  ets:tid() | undefined, non_neg_integer()} | bodies) ->
+                  ets:tid() | undefined, non_neg_integer(), boolean()} | bodies) ->
           {ok, {supervisor:sup_flags(), [supervisor:child_spec()]}}.
 init(sim) ->
     {ok, {#{strategy => rest_for_one, intensity => 0, period => 1}, []}};
-init({buckets, M, Dt, N, Profile, Trace, Bodies}) ->
+init({buckets, M, Dt, N, Profile, Trace, Bodies, Native}) ->
     ok = rw_native:huge_pages_for(Bodies),
-    Store = case rw_native:enabled() of
+    Store = case Native andalso rw_native:loaded() of
                 true -> native;
                 false -> erlang
             end,

@@ -31,7 +31,8 @@
 %% frames, checkpoints, the end and stalls; frames, ring_size,
 %% checkpoint_ms (rw_gvt); watchdog_ms: how long GVT may stand still
 %% before the watchdog speaks; flow: the run's allowance (rw_flow), which
-%% the GVT process keeps to and the watchdog knows of.
+%% the GVT process keeps to and the watchdog knows of; native: whether the run uses the C loops
+%% (rw_native:default/0 unless given).
 -type options() :: #{nodes => [node()], run => pid(), frames => boolean(), ring_size => pos_integer(),
                      checkpoint_ms => non_neg_integer(), watchdog_ms => pos_integer(), flow => atomics:atomics_ref(),
                      atom() => term()}.
@@ -45,7 +46,8 @@
 %% with its name. Its bodies are told to go once every one of them exists.
 -spec start_link(#scene{}, pos_integer(), #{records := ets:tid(), ring := ets:tid()}, rw_stats:counters(),
                  options()) -> {ok, pid(), #sim{}, [{pid(), who()}]} | {error, term()}.
-start_link(Scene, NBuckets, RunTables, Stats, Opts) ->
+start_link(Scene, NBuckets, RunTables, Stats, Opts0) ->
+    Opts = maps:merge(#{native => rw_native:default()}, Opts0),
     {ok, Sup} = supervisor:start_link(?MODULE, sim),
     try
         {ok, TablesPid} = child(Sup, rw_sim_parts:worker(tables, rw_sim_tables, [])),
@@ -66,7 +68,7 @@ one_node(Sup, #scene{model = M, substep = Dt, spheres = Spheres, initial = Initi
          Opts) ->
     Profile = case maps:get(profile, Opts, false) of true -> Stats; false -> undefined end,
     {ok, BucketSup} = child(Sup, rw_sim_parts:bucket_pool(M, Dt, NBuckets, Profile, maps:get(trace, Opts, undefined),
-                                                              length(Spheres))),
+                                                              length(Spheres), maps:get(native, Opts))),
     Buckets = lists:sort([{I, P} || {{bucket, I}, P, _, _} <- supervisor:which_children(BucketSup)]),
     Sim0 = rw_sim:new(Scene, Tables, list_to_tuple([P || {_, P} <- Buckets]), Stats, Opts),
     {Sweeper, Gvt} = start_gvt(Sup, Sim0, Tables, Opts),
@@ -95,7 +97,7 @@ nodes(Sup, Nodes, #scene{model = M, substep = Dt, spheres = Spheres, initial = I
     Sites = [begin
                  SiteStats = case Node =:= node() of true -> Stats; false -> undefined end,
                  SiteOpts = #{model => M, dt => Dt, per => Per, bodies => length(Spheres) div K, profile => Profile,
-                              stats => SiteStats},
+                              stats => SiteStats, native => maps:get(native, Opts)},
                  {ok, Pid, Buckets} = child(Sup, #{id => {site, I}, start => {rw_site, start_link, [Node, SiteOpts]},
                                                    restart => permanent, shutdown => 10000, type => worker}),
                  {I, Node, Pid, Buckets}

@@ -24,9 +24,10 @@
 %% The buckets to start (per: how many), their model and substep, the
 %% bodies they are for (about as many as the site will hold), and whether
 %% to profile; stats: the run's counters, when the site is on the run's
-%% node (elsewhere the site has its own).
+%% node (elsewhere the site has its own); native: whether the run uses the
+%% C loops (where the library is loaded on the site's node).
 -type options() :: #{model := #model{}, dt := pos_integer(), per := pos_integer(), bodies := non_neg_integer(),
-                     profile := boolean(), stats := rw_stats:counters() | undefined}.
+                     profile := boolean(), stats := rw_stats:counters() | undefined, native := boolean()}.
 
 -define(START_MS, 60000).
 
@@ -81,7 +82,7 @@ call(Site, Req) ->
 }).
 
 -spec init(pid(), options()) -> no_return().
-init(Parent, #{model := M, dt := Dt, per := Per, bodies := Bodies, profile := Profile, stats := Stats0}) ->
+init(Parent, #{model := M, dt := Dt, per := Per, bodies := Bodies, profile := Profile, stats := Stats0, native := Native}) ->
     process_flag(trap_exit, true),
     Stats = case Stats0 of undefined -> rw_stats:new(); _ -> Stats0 end,
     {ok, Sup} = supervisor:start_link(rw_sim_parts, sim),
@@ -89,7 +90,8 @@ init(Parent, #{model := M, dt := Dt, per := Per, bodies := Bodies, profile := Pr
     Records = ets:new(rw_site_records, [ordered_set, public, {write_concurrency, true}]),
     Tables = (rw_sim_tables:tables(TablesPid))#{records => Records},
     BucketProfile = case Profile of true -> Stats; false -> undefined end,
-    {ok, BucketSup} = supervisor:start_child(Sup, rw_sim_parts:bucket_pool(M, Dt, Per, BucketProfile, undefined, Bodies)),
+    {ok, BucketSup} = supervisor:start_child(Sup, rw_sim_parts:bucket_pool(M, Dt, Per, BucketProfile, undefined, Bodies,
+                                                                                Native)),
     Buckets = [P || {_, P} <- lists:sort([{I, P} || {{bucket, I}, P, _, _} <- supervisor:which_children(BucketSup)])],
     Parent ! {self(), buckets, Buckets},
     loop(#site{parent = Parent, sup = Sup, tables = Tables, buckets = Buckets, stats = Stats, profile = Profile,

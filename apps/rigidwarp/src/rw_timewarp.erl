@@ -16,6 +16,8 @@
                      %% (rw_run:ack/1), else the run reads how many wait in its mailbox
                      owner => pid(), subscribe => none | frames | times, ack => boolean(),
                      groups => boolean(), group_max => pos_integer(), speculation_mb => pos_integer(),
+                     %% the engine's C loops where their library is loaded (default: rw_native:default/0)
+                     native => boolean(),
                      %% (tests) regroup points this many strides apart, groups of
                      %% all bodies near each other however they move
                      regroup_every => pos_integer(), grouping => persistent | eager,
@@ -34,7 +36,7 @@
                      on_progress => fun((map()) -> any())}.
 
 -define(RUN_KEYS, [buckets, schedulers, nodes, migrate, groups, group_max, speculation_mb, regroup_every, grouping, watchdog_ms, ring_size, profile, read_frames,
-                   trace, delay, max_restarts, restart_period_ms, checkpoint_ms, from]).
+                   trace, delay, max_restarts, restart_period_ms, checkpoint_ms, from, native]).
 
 %% Start a simulation; it runs on its own until the scene's end.
 -spec start(#scene{}, options()) -> {ok, handle()} | {error, term()}.

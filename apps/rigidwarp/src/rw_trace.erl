@@ -25,8 +25,11 @@
 
 -define(TAB, '$rw_trace_tab').
 -define(TASK, '$rw_trace_task').
-%% the time in the C loops so far in the task, and when the current call began
+%% the time in the C loops so far in the task and the reductions they
+%% counted (their share of the time slice, which they report), and when
+%% the current call began
 -define(NATIVE, '$rw_trace_native').
+-define(NATIVE_REDS, '$rw_trace_native_reds').
 -define(NATIVE_START, '$rw_trace_native_start').
 %% Reductions per microsecond of the engine's Erlang code (17-32 over whole
 %% runs on a 2-core AMD EPYC, OTP 25): the cost of a microsecond in C.
@@ -77,6 +80,7 @@ begin_task(Kind, Msg) ->
             {reductions, R} = process_info(self(), reductions),
             _ = put(?TASK, {erlang:unique_integer([monotonic, positive]), Kind, R, In, [], []}),
             _ = put(?NATIVE, 0),
+            _ = put(?NATIVE_REDS, 0),
             ok
     end.
 
@@ -91,7 +95,7 @@ end_task() ->
                 {Seq, Kind, R0, In, Out, Commits} ->
                     {reductions, R} = process_info(self(), reductions),
                     Native = erlang:convert_time_unit(erase(?NATIVE), native, microsecond) * ?REDUCTIONS_PER_US,
-                    true = ets:insert(Tab, {Seq, self(), Kind, R - R0 + Native, In, Out, Commits}),
+                    true = ets:insert(Tab, {Seq, self(), Kind, R - R0 - erase(?NATIVE_REDS) + Native, In, Out, Commits}),
                     ok
             end
     end.
@@ -141,10 +145,16 @@ timing() -> get(?TASK) =/= undefined.
 
 -spec native_begin() -> ok.
 native_begin() ->
-    _ = put(?NATIVE_START, erlang:monotonic_time()),
+    {reductions, R} = process_info(self(), reductions),
+    _ = put(?NATIVE_START, {erlang:monotonic_time(), R}),
     ok.
 
+%% (the call's time counts at the rate of Erlang code, in place of the
+%% reductions it reported)
 -spec native_end(R) -> R.
 native_end(Result) ->
-    _ = put(?NATIVE, get(?NATIVE) + (erlang:monotonic_time() - get(?NATIVE_START))),
+    {reductions, R} = process_info(self(), reductions),
+    {T0, R0} = get(?NATIVE_START),
+    _ = put(?NATIVE, get(?NATIVE) + (erlang:monotonic_time() - T0)),
+    _ = put(?NATIVE_REDS, get(?NATIVE_REDS) + (R - R0)),
     Result.

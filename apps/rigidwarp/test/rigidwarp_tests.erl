@@ -8,6 +8,7 @@ scene() -> filename:join(code:lib_dir(rigidwarp), "../../../../scenarios/head_on
 %% A value of each kind that check accepts, and one it refuses.
 good(ms) -> 1;
 good(count) -> 2;
+good({count, Max}) -> Max;
 good(non_neg) -> 0;
 good(boolean) -> true;
 good(path) -> "x.jsonl";
@@ -17,6 +18,7 @@ good({one_of, [A | _]}) -> A.
 
 bad(ms) -> -1;
 bad(count) -> 0;
+bad({count, Max}) -> Max + 1;
 bad(non_neg) -> -1;
 bad(boolean) -> yes;
 bad(path) -> 42;

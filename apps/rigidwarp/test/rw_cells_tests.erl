@@ -42,6 +42,71 @@ far_cells_test() ->
             ?assertNotEqual([], [H || H <- Hits, H =/= none])
     end.
 
+%% A span or cell that is not a cell's key is badarg, not enomem, and the
+%% call changes nothing: every key is read before the store is touched.
+bad_keys_are_badarg_test() ->
+    case rw_native:loaded() of
+        false ->
+            ok;
+        true ->
+            Model = #model{},
+            {Write, Spans} = write(Model, a, 0, [{0, {0.0, 0.0, 0.0}, {100.0, 0.0, 0.0}}], 8),
+            ?assert(length(Spans) >= 2),
+            Store = rw_native:cells_new(),
+            ok = rw_native:cells_store(Store, a, Write, Spans, 7),
+            Before = rw_native:cells_dump(Store),
+            {Cell, Ta, Tb, Ms} = lists:last(Spans),
+            [begin
+                 BadSpans = lists:droplast(Spans) ++ [{Bad, Ta, Tb, Ms}],
+                 ?assertError(badarg, rw_native:cells_store(Store, b, Write, BadSpans, 7)),
+                 ?assertError(badarg, rw_native:cells_probe(Store, Write, BadSpans, 1)),
+                 ?assertError(badarg, rw_native:cells_delete(Store, a, 0, [element(1, hd(Spans)), Bad])),
+                 ?assertEqual(Before, rw_native:cells_dump(Store))
+             end || Bad <- [{1, 2}, {a, 0, 0}, {0, 0, "1"}, not_a_cell]],
+            %% (a cell past 64 bits is a key)
+            ok = rw_native:cells_delete(Store, a, 0, [Cell, {1 bsl 70, 0, 0}]),
+            ?assertNotEqual(Before, rw_native:cells_dump(Store))
+    end.
+
+%% A store of tens of thousands of cells is swept in slices (calls of at
+%% most half a time slice each, rw_native:cells_gc/2 calling again): the
+%% same segments as the Erlang store keeps, and the cells left empty gone;
+%% a group's write of 70 members left without segments is freed on a dirty
+%% scheduler (rw_native's nif_cells_free/1).
+large_sweep_test_() ->
+    case rw_native:loaded() of
+        false -> [];
+        true -> {timeout, 120, fun large_sweep/0}
+    end.
+
+large_sweep() ->
+    Model = #model{},
+    Group = [{2000 + K, {-50.0 - 0.6 * K, 0.0, 0.0}, {1.0, 0.0, 0.0}} || K <- lists:seq(1, 70)],
+    Writes = [{group, 0, write(Model, group, 0, Group, 12)}]
+             ++ [{Owner, T0, write(Model, Owner, T0, [Body], 12)}
+                 || I <- lists:seq(1, 1000), T0 <- [0, 12], Owner <- [{owner, I}],
+                    Body <- [{I, {10.0 * (I rem 60), 10.0 * (I div 60) + 0.4 * T0, 0.0}, {300.0, 0.0, 0.0}}]],
+    Store = fun(S0) ->
+                    lists:foldl(fun({Owner, T0, {Write, Spans}}, S) ->
+                                        rw_cells:store(Owner, Write, Spans, none, T0 + 11, #{}, S)
+                                end, S0, Writes)
+            end,
+    {E, N} = {Store(rw_cells:new(Model, ?DT, erlang)), Store(rw_cells:new(Model, ?DT, native))},
+    Before = rw_cells:contents(N),
+    ?assertEqual(rw_cells:contents(E), Before),
+    Counted = [{rw_native, nif_cells_gc, 3}, {rw_native, nif_cells_free, 1}],
+    _ = [erlang:trace_pattern(MFA, true, [call_count]) || MFA <- Counted],
+    {E1, N1} = try {rw_cells:gc(12, E), rw_cells:gc(12, N)}
+               after
+                   [{call_count, Slices}, {call_count, Frees}] = [erlang:trace_info(MFA, call_count) || MFA <- Counted],
+                   _ = [erlang:trace_pattern(MFA, false, [call_count]) || MFA <- Counted],
+                   ?assert(Slices >= 2),
+                   ?assertEqual(1, Frees)
+               end,
+    Left = rw_cells:contents(N1),
+    ?assertEqual(rw_cells:contents(E1), Left),
+    ?assert(length(Left) < length(Before)).
+
 prop_same(Model) ->
     ?FORALL(Ops, ops(), begin
                             _ = run(Model, Ops),
@@ -116,9 +181,11 @@ scale({X, Y, Z}, K) -> {X * K, Y * K, Z * K}.
 ops() ->
     ?LET(Ops, non_empty(list(frequency([{6, write_op()}, {2, delete_op()}, {1, gc_op()}]))), times(Ops, #{}, 0)).
 
+%% (now and then a long write: long windows to scan)
 write_op() ->
     ?LET({Owner, N}, {oneof([a, b, c, d]), range(1, 3)},
-         {write, Owner, [{body(), vec(-1.0, 1.0), vec(-400.0, 400.0)} || _ <- lists:seq(1, N)], range(1, 12)}).
+         {write, Owner, [{body(), vec(-1.0, 1.0), vec(-400.0, 400.0)} || _ <- lists:seq(1, N)],
+          frequency([{9, range(1, 12)}, {1, range(40, 200)}])}).
 
 delete_op() -> {delete, oneof([a, b, c, d]), range(0, 6)}.
 

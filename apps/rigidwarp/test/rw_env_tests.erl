@@ -1,6 +1,7 @@
 %% The application's environment holds the defaults a site may change:
-%% viewer_port, the viewer's port when a call names none, and ring_frames,
-%% the most frames a started run keeps. rigidwarp.app and
+%% viewer_port, the viewer's port when a call names none, ring_frames,
+%% the most frames a started run keeps, and native, whether a run uses the
+%% engine's C loops unless its options say. rigidwarp.app and
 %% config/sys.config give the same values.
 -module(rw_env_tests).
 -include_lib("eunit/include/eunit.hrl").
@@ -27,6 +28,19 @@ ring_frames_bounds_the_ring_test() ->
                      ok = rigidwarp:stop(Sim),
                      ?assertEqual(lists:seq(310, 500, 10), [T || {frame, T, _} <- Frames])
              end).
+
+native_is_the_runs_default_test() ->
+    {ok, _} = application:ensure_all_started(rigidwarp),
+    true = rw_native:loaded(),
+    Native = fun(Opts) -> {ok, #{native := N}} = rigidwarp:run(scene(), Opts#{until => 100}), N end,
+    ?assert(Native(#{})),
+    with_env(native, false, fun() ->
+                                    ?assertNot(Native(#{})),
+                                    ?assert(Native(#{native => true}))
+                            end),
+    ?assertNot(Native(#{native => false})),
+    %% (a value that is not a boolean: the C loops, and a warning)
+    with_env(native, maybe, fun() -> ?assert(Native(#{})) end).
 
 viewer_port_is_the_default_port_test() ->
     {ok, _} = application:ensure_all_started(rigidwarp),

@@ -29,7 +29,11 @@
       --ccd on|off           swept (continuous) collision tests (default: the scene's)
       --groups on|off        timewarp: step bodies in persistent contact as one entity
                              (default on; off is the paper's one entity per body)
-      --group-max N          timewarp: the most bodies in one contact group (default 1024)
+      --group-max N          timewarp: the most bodies in one contact group (default 1024,
+                             at most 4096)
+      --native on|off        timewarp: the engine's C loops where their library loads (default
+                             on); off runs its Erlang code alone, slower, with the same frames;
+                             the summary's native says whether they ran (on every node)
       --speculation-mb N     timewarp: the memory in MiB that the bodies' history past GVT may
                              take (default 1024); where the stride would need more, bodies
                              step ahead of GVT by a shorter one (the summary's
@@ -39,7 +43,7 @@
       --quiet                no progress line on stderr
       the summary's keys in this order (those the run has; any others follow, sorted):
                              scene, engine, bodies, substep_ms, stride_ms, sim_ms, wall_ms,
-                             realtime_factor, frames, then
+                             realtime_factor, frames, native, then
                              timewarp: effective_stride_ms, throttled, memory_holds, events,
                              antievents, rollbacks, primary_rollbacks, secondary_rollbacks,
                              rolled_back_substeps, computed_substeps, committed_substeps,

@@ -8,7 +8,7 @@
 
 -define(VALUE_FLAGS, ["--engine", "--schedulers", "--nodes", "--connect", "--cookie", "--buckets", "--frames", "--until", "--substep",
                       "--stride", "--frame-ms", "--integrator", "--ccd", "--groups", "--group-max",
-                      "--speculation-mb"]).
+                      "--speculation-mb", "--native"]).
 
 %% Flags to {SceneFile, Options, Quiet}.
 -spec parse([string()]) -> {string(), map(), boolean()}.
@@ -66,7 +66,14 @@ parse(["--ccd", V | _], _, _, _) -> throw({usage, "--ccd must be on or off, got 
 parse(["--groups", "on" | Rest], F, O, Q) -> parse(Rest, F, O#{groups => true}, Q);
 parse(["--groups", "off" | Rest], F, O, Q) -> parse(Rest, F, O#{groups => false}, Q);
 parse(["--groups", V | _], _, _, _) -> throw({usage, "--groups must be on or off, got " ++ V});
-parse(["--group-max", V | Rest], F, O, Q) -> parse(Rest, F, O#{group_max => pos_int("--group-max", V)}, Q);
+parse(["--group-max", V | Rest], F, O, Q) ->
+    N = pos_int("--group-max", V),
+    Max = rw_regroup:max_allowed(),
+    N =< Max orelse throw({usage, lists:flatten(io_lib:format("--group-max must be at most ~b, got ~s", [Max, V]))}),
+    parse(Rest, F, O#{group_max => N}, Q);
+parse(["--native", "on" | Rest], F, O, Q) -> parse(Rest, F, O#{native => true}, Q);
+parse(["--native", "off" | Rest], F, O, Q) -> parse(Rest, F, O#{native => false}, Q);
+parse(["--native", V | _], _, _, _) -> throw({usage, "--native must be on or off, got " ++ V});
 parse(["--speculation-mb", V | Rest], F, O, Q) ->
     N = pos_int("--speculation-mb", V),
     N =< 1 bsl 20 orelse throw({usage, "--speculation-mb must be at most 1048576 (1 TiB), got " ++ V}),

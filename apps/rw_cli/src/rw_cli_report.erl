@@ -9,7 +9,7 @@
 %% The summary's keys in the order they are printed: these first (those
 %% the run has), then any others sorted. The run help text lists the same
 %% order (cli_SUITE checks that it does).
--define(COMMON_KEYS, [scene, engine, bodies, substep_ms, stride_ms, sim_ms, wall_ms, realtime_factor, frames]).
+-define(COMMON_KEYS, [scene, engine, bodies, substep_ms, stride_ms, sim_ms, wall_ms, realtime_factor, frames, native]).
 -define(TIMEWARP_KEYS, [effective_stride_ms, throttled, memory_holds, events, antievents, rollbacks, primary_rollbacks, secondary_rollbacks, rolled_back_substeps,
                         computed_substeps, committed_substeps, efficiency, steps, regroups, restarts,
                         nodes, cross_node_messages, cross_node_bytes, cross_node_messages_per_s,
