@@ -920,7 +920,7 @@ ERL_NIF_TERM rw_cells_gc(ErlNifEnv *env, int argc, const ERL_NIF_TERM argv[]) {
                 continue;
             }
             for (size_t j = d == depth ? writer : 0; j < c->n;) {
-                if (swept > 0 && swept % 8 == 0 && rw_now() - start >= GC_BUDGET_US) {
+                if (swept > 0 && rw_now() - start >= GC_BUDGET_US) {
                     result = enif_make_tuple3(env, enif_make_uint64(env, i), enif_make_uint64(env, d),
                                               enif_make_uint64(env, j));
                     goto out;
