@@ -225,12 +225,9 @@ done(#s{sim = #sim{end_t = End}} = S) ->
     ok = rw_sweeper:sync(S#s.sweeper),
     notify(S#s.run, {rw_done, self(), ms(End, S)}).
 
-advance_over(#s{complete = C, sim = #sim{sync = Cal} = Sim, unready = U, gvt = G} = S) ->
+advance_over(#s{complete = C, sim = #sim{sync = Cal} = Sim, gvt = G} = S) ->
     Next = rw_sync:after_gvt(G, Cal),
-    %% not up to a regroup point whose entities have not all stopped there,
-    %% nor past the allowance
-    Held = (map_size(U) > 0 andalso Next >= lists:min(maps:keys(U))) orelse flow_held(G, S),
-    case (not Held) andalso maps:take(Next, C) of
+    case (not held(G, Next, S)) andalso maps:take(Next, C) of
         {true, C1} ->
             %% An entity told to stop at a regroup point rolls back to it and
             %% takes back its commits from it on, perhaps after their
@@ -386,9 +383,8 @@ confirm(#s{multi = #m{confirming = none} = M, gvt = G, sim = #sim{sync = Cal}} =
     end;
 confirm(S) -> S.
 
-confirmable(Prev, Next, #s{sim = #sim{sync = Cal, end_t = End}, unready = U,
-                          multi = #m{reported = Reported, voters = Voters}} = S) ->
-    Held = (map_size(U) > 0 andalso Next >= lists:min(maps:keys(U))) orelse flow_held(Prev, S),
+confirmable(Prev, Next, #s{sim = #sim{sync = Cal, end_t = End}, multi = #m{reported = Reported, voters = Voters}} = S) ->
+    Held = held(Prev, Next, S),
     Whole = case Reported of
                 #{Next := By} -> lists:all(fun(V) -> maps:is_key(V, By) end, Voters);
                 #{} -> false
@@ -463,8 +459,8 @@ confirmed(Site, Confirmed, Rest, Records, Met, #s{sim = Sim, multi = M} = S) ->
 %% and the entities told to stop at the next one must hear it before GVT
 %% passes it (the sync points left are confirmed again later).
 pass_confirmed([], S) -> S;
-pass_confirmed([T | Ts], #s{unready = U} = S) ->
-    case map_size(U) > 0 andalso T >= lists:min(maps:keys(U)) of
+pass_confirmed([T | Ts], S) ->
+    case regroup_held(T, S) of
         true ->
             S;
         false ->
@@ -488,6 +484,13 @@ publish(_G0, #s{gvt = G, sim = #sim{end_t = End} = Sim, multi = M, passed = Pass
              _ -> ok
          end,
     S2.
+
+%% GVT at G (or a batch up to G) does not pass sync point Next: not up to
+%% a regroup point whose entities have not all stopped there, nor past
+%% the allowance.
+held(G, Next, S) -> regroup_held(Next, S) orelse flow_held(G, S).
+
+regroup_held(T, #s{unready = U}) -> map_size(U) > 0 andalso T >= lists:min(maps:keys(U)).
 
 %% GVT at G (or a batch up to G) goes no further: the run's subscribers
 %% have not handled enough of the frames before it.
